@@ -1,0 +1,104 @@
+"""Known physics of the hybrid model: potential-function avoidance (paper, "KNODE").
+
+Both terms derive from U(d) = (lambda / 2) / d^2 for d <= d0 (zero beyond), so the
+force on the robot is -grad U = lambda * r / d^4, with r pointing away from the obstacle.
+Gains are lambda = a + phi^2 with a >= 0 fixed and phi trainable (the paper uses a > 0
+in 2D and a = 0 in 3D), which keeps every gain non-negative whatever phi learns.
+
+All functions are TorchScript-compatible and work on a batch of neighbour matrices.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["AvoidanceGain", "collision_avoidance", "wall_avoidance", "collision_potential",
+           "wall_potential", "MIN_DISTANCE"]
+
+# Distances are floored at ``min_distance`` (default MIN_DISTANCE) so that two robots on top
+# of each other get a huge but finite push (the policy's saturation bounds it), not inf/NaN.
+# TorchScript cannot read module globals, hence the literal defaults below.
+MIN_DISTANCE = 1e-3
+
+
+class AvoidanceGain(nn.Module):
+    """lambda = a + phi^2 with ``a`` a fixed buffer and ``phi`` a trainable parameter."""
+
+    def __init__(self, a: float = 0.0, phi: float = 1.0, trainable: bool = True):
+        super().__init__()
+        if a < 0:
+            raise ValueError(f"gain offset a must be >= 0, got {a}")
+        self.register_buffer("a", torch.tensor(float(a)))
+        self.phi = nn.Parameter(torch.tensor(float(phi)), requires_grad=trainable)
+
+    def forward(self) -> Tensor:
+        return self.a + self.phi * self.phi
+
+
+def _closest_active(Y: Tensor, mask: Tensor, position_dim: int):
+    """Offset r = p_0 - p_j ``[B, p]`` and distance ``[B]`` to the closest active neighbour row."""
+    own = Y[:, 0, :position_dim]
+    offsets = own.unsqueeze(1) - Y[:, 1:, :position_dim]            # [B, k-1, p]
+    dist = torch.linalg.vector_norm(offsets, dim=-1)                # [B, k-1]
+    inactive = mask[:, 1:] <= 0
+    dist = dist.masked_fill(inactive, float("inf"))
+    best, j = torch.min(dist, dim=-1)                               # first row wins ties
+    r = torch.gather(offsets, 1, j.view(-1, 1, 1).expand(-1, 1, offsets.shape[-1])).squeeze(1)
+    return r, best
+
+
+def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
+                        min_distance: float = 1e-3) -> Tensor:
+    """Repulsion from the closest active neighbour only.
+
+    Args:
+        Y: ``[B, k, d]`` neighbour matrices (row 0 = own state, positions first).
+        mask: ``[B, k]`` 1 for real rows.
+        gain: scalar lambda.
+        d0: range of the potential; no force beyond it.
+
+    Returns:
+        ``[B, p]`` force lambda * r / d^4 (zero without an active neighbour within d0).
+    """
+    if Y.shape[1] < 2:
+        return torch.zeros(Y.shape[0], position_dim, dtype=Y.dtype, device=Y.device)
+    r, dist = _closest_active(Y, mask, position_dim)
+    near = (dist <= d0).unsqueeze(-1)
+    d = dist.clamp(min=min_distance).masked_fill(~near.squeeze(-1), 1.0).unsqueeze(-1)
+    return torch.where(near, gain * r / d ** 4, torch.zeros_like(r))
+
+
+def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3) -> Tensor:
+    """Repulsion from the closest point of each face of the cube [-box, box]^p.
+
+    Args:
+        position: ``[B, p]``.
+
+    Returns:
+        ``[B, p]``: for each face within d0, lambda / d^3 along the inward normal. A robot
+        already outside the box is pushed back in with the floored distance.
+    """
+    up = (box - position).clamp(min=min_distance)      # distance to the +box faces
+    down = (position + box).clamp(min=min_distance)    # distance to the -box faces
+    zero = torch.zeros_like(position)
+    push_down = torch.where(up <= d0, -gain / up ** 3, zero)
+    push_up = torch.where(down <= d0, gain / down ** 3, zero)
+    return push_down + push_up
+
+
+def collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
+    """U ``[B]`` of :func:`collision_avoidance` (for checks against autograd)."""
+    _, dist = _closest_active(Y, mask, position_dim)
+    near = dist <= d0
+    d = dist.masked_fill(~near, 1.0)
+    return torch.where(near, 0.5 * gain / d ** 2, torch.zeros_like(d))
+
+
+def wall_potential(position: Tensor, box: float, gain: Tensor, d0: float) -> Tensor:
+    """U ``[B]`` of :func:`wall_avoidance` for robots inside the box."""
+    total = torch.zeros(position.shape[0], dtype=position.dtype, device=position.device)
+    for dist in (box - position, position + box):
+        near = dist <= d0
+        d = dist.masked_fill(~near, 1.0)
+        total = total + torch.where(near, 0.5 * gain / d ** 2, torch.zeros_like(d)).sum(-1)
+    return total

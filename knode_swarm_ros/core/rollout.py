@@ -1,0 +1,85 @@
+"""The canonical rollout (DESIGN.md, "Rollout semantics").
+
+At each step every robot builds its neighbour matrix, the policy is evaluated once per
+robot, and the command is held over the step (zero-order hold), integrated exactly:
+
+* double integrator (``acceleration``): p += v dt + c dt^2 / 2, v += c dt;
+* first order (``velocity``): p += c dt, h = c / |c| (h unchanged when c = 0).
+
+The simulator node and the parity tests use :func:`zoh_step`; offline evaluation uses
+:func:`rollout`, batched over several swarms at once.
+"""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import numpy as np
+
+from .network import neighbour_matrix
+from .scenarios import Scenario, get_scenario
+
+__all__ = ["zoh_step", "rollout", "policy_commands", "PolicyFn"]
+
+# A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
+PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def zoh_step(states: np.ndarray, command: np.ndarray, scenario: Scenario, dt: float) -> np.ndarray:
+    """Advance ``states [..., n, d]`` by one step of ``dt`` under ``command [..., n, m]`` held constant."""
+    p = scenario.position
+    new = np.array(states, dtype=np.float64, copy=True)
+    c = np.asarray(command, dtype=np.float64)
+    if scenario.command == "acceleration":
+        v = new[..., scenario.velocity]
+        new[..., p] = new[..., p] + v * dt + 0.5 * c * dt * dt
+        new[..., scenario.velocity] = v + c * dt
+    else:
+        new[..., p] = new[..., p] + c * dt
+        speed = np.linalg.norm(c, axis=-1, keepdims=True)
+        moving = speed > 0
+        heading = np.divide(c, speed, out=np.zeros_like(c), where=moving)
+        new[..., scenario.heading] = np.where(moving, heading, new[..., scenario.heading])
+    return new
+
+
+def policy_commands(policy: PolicyFn, z_now: np.ndarray, z_delayed: np.ndarray, scenario: Scenario,
+                    d_cr: float, k: int) -> np.ndarray:
+    """Commands ``[..., n, m]`` of every robot: neighbour matrices, then one batched policy call."""
+    Y, mask = neighbour_matrix(z_now, z_delayed, scenario.position_dim, d_cr, k)
+    lead = Y.shape[:-2]
+    out = policy(Y.reshape((-1,) + Y.shape[-2:]), mask.reshape((-1, mask.shape[-1])))
+    return np.asarray(out, dtype=np.float64).reshape(lead + (scenario.command_dim,))
+
+
+def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: float, k: int,
+            tau: int, dt: float, progress: Optional[Callable[[int], None]] = None) -> np.ndarray:
+    """Roll a policy out from initial states.
+
+    Args:
+        policy: ``(Y [B, k, d], mask [B, k]) -> [B, m]``, e.g. a :class:`LoadedPolicy`.
+        z0: ``[n, d]`` or ``[S, n, d]`` initial states of one or S swarms (any n).
+        steps: number of steps; the result holds ``steps + 1`` frames, frame 0 = z0.
+        tau: delay in steps; before t - tau exists the earliest frame is used.
+        progress: optional callback called with the step index after each step.
+
+    Returns:
+        float64 ``[S, steps + 1, n, d]`` (``[steps + 1, n, d]`` for a single ``[n, d]`` input).
+    """
+    spec = get_scenario(scenario)
+    z0 = np.asarray(z0, dtype=np.float64)
+    single = z0.ndim == 2
+    if single:
+        z0 = z0[None]
+    if z0.ndim != 3 or z0.shape[-1] != spec.state_dim:
+        raise ValueError(f"z0 must be [n, {spec.state_dim}] or [S, n, {spec.state_dim}], got {z0.shape}")
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    out = np.empty((z0.shape[0], steps + 1) + z0.shape[1:], dtype=np.float64)
+    out[:, 0] = z0
+    for t in range(steps):
+        z_delayed = out[:, max(t - tau, 0)]
+        command = policy_commands(policy, out[:, t], z_delayed, spec, d_cr, k)
+        out[:, t + 1] = zoh_step(out[:, t], command, spec, dt)
+        if progress is not None:
+            progress(t)
+    return out[0] if single else out
