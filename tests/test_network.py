@@ -1,0 +1,117 @@
+"""The information network against hand-built configurations (DESIGN.md, Method A and B)."""
+import numpy as np
+import pytest
+
+from knode_swarm_ros.core import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
+
+
+def flock(*rows):
+    """flock2d states [n, 4] from (px, py, vx, vy) rows."""
+    return np.array(rows, dtype=np.float64)
+
+
+def test_radius_is_inclusive_and_rows_sorted_by_distance():
+    z = flock((0, 0, 1, 1), (3, 4, 0, 0), (1, 0, 2, 2), (0, 2, 3, 3), (3, 4.0001, 9, 9))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 6)
+    # Robot 0: distance 1 (robot 2), 2 (robot 3), exactly 5 (robot 1, kept); 5.0001 (robot 4) is out.
+    expected = np.array([z[0], z[2], z[3], z[1], np.zeros(4), np.zeros(4)])
+    np.testing.assert_array_equal(Y[0], expected)
+    np.testing.assert_array_equal(mask[0], [1, 1, 1, 1, 0, 0])
+
+
+def test_fewer_robots_than_rows_pads_with_zeros():
+    z = flock((0, 0, 1, 0), (1, 0, 0, 1))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 6)
+    assert Y.shape == (2, 6, 4) and mask.shape == (2, 6)
+    np.testing.assert_array_equal(Y[1, :2], [z[1], z[0]])
+    np.testing.assert_array_equal(Y[1, 2:], 0.0)
+    np.testing.assert_array_equal(mask[1], [1, 1, 0, 0, 0, 0])
+
+
+def test_only_k_minus_1_closest_are_kept():
+    z = flock((0, 0, 0, 0), (4, 0, 1, 0), (1, 0, 2, 0), (3, 0, 3, 0), (2, 0, 4, 0))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 3)
+    np.testing.assert_array_equal(Y[0], [z[0], z[2], z[4]])
+    assert mask[0].all()
+
+
+def test_ties_are_broken_by_lower_id():
+    z = flock((0, 0, 0, 0), (0, 2, 1, 0), (2, 0, 2, 0), (-2, 0, 3, 0), (0, -2, 4, 0))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 4)
+    np.testing.assert_array_equal(Y[0, 1:, 2], [1, 2, 3])  # robots 1, 2, 3 in id order
+
+
+def test_k_equal_one_is_the_robot_alone():
+    z = flock((0, 0, 5, 6), (0.5, 0, 0, 0))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 1)
+    np.testing.assert_array_equal(Y[:, 0], z)
+    assert Y.shape == (2, 1, 4) and mask.all()
+
+
+def test_isolated_robot_has_only_its_own_row():
+    z = flock((0, 0, 1, 2), (10, 0, 0, 0), (20, 0, 0, 0))
+    Y, mask = neighbour_matrix(z, z, 2, 5.0, 4)
+    np.testing.assert_array_equal(mask, [[1, 0, 0, 0]] * 3)
+    np.testing.assert_array_equal(Y[:, 1:], 0.0)
+
+
+def test_delay_uses_own_state_now_and_neighbours_at_t_minus_tau():
+    # Robot 1 moves away from robot 0: at t = 0, 1 it is within d_cr, at t = 2, 3 outside.
+    T = 4
+    states = np.zeros((T, 2, 4))
+    states[:, 0] = [[0, 0, 0, 0], [0.1, 0, 1, 0], [0.2, 0, 2, 0], [0.3, 0, 3, 0]]
+    states[:, 1] = [[1, 0, 10, 0], [3, 0, 11, 0], [6, 0, 12, 0], [9, 0, 13, 0]]
+    Y, mask = neighbour_matrices(states, 2, 5.0, 3, tau=2)
+    # Own row is always the state at t.
+    np.testing.assert_array_equal(Y[:, 0, 0], states[:, 0])
+    # t = 0, 1: before t - tau exists, the first frame is used: neighbour state at t = 0.
+    np.testing.assert_array_equal(Y[0, 0, 1], states[0, 1])
+    np.testing.assert_array_equal(Y[1, 0, 1], states[0, 1])
+    # t = 2: state of t = 0 (distance 1 at t - tau, inside), t = 3: state of t = 1 (distance 2.9).
+    np.testing.assert_array_equal(Y[2, 0, 1], states[0, 1])
+    np.testing.assert_array_equal(Y[3, 0, 1], states[1, 1])
+    assert mask[:, 0, 1].all()
+    # Without delay, the neighbour at t = 2 (distance 5.8) is out of range.
+    Y0, mask0 = neighbour_matrices(states, 2, 5.0, 3, tau=0)
+    np.testing.assert_array_equal(mask0[:, 0, 1], [1, 1, 0, 0])
+
+
+def test_neighbour_set_is_decided_at_t_minus_tau_positions():
+    # At t robot 1 is far, but at t - tau it was close: it is a neighbour (delayed rule).
+    states = np.zeros((2, 2, 4))
+    states[0, 1, :2] = [1, 0]
+    states[1, 1, :2] = [100, 0]
+    Y, mask = neighbour_matrices(states, 2, 5.0, 2, tau=1)
+    assert mask[1, 0, 1] and mask[1, 1, 1]
+    np.testing.assert_array_equal(Y[1, 0, 1], states[0, 1])
+
+
+def test_single_robot_builder_equals_batched_builder_bit_for_bit():
+    rng = np.random.default_rng(1)
+    z_now = rng.normal(scale=3.0, size=(12, 6))
+    z_delayed = z_now + rng.normal(scale=0.5, size=z_now.shape)
+    z_delayed[5, :3] = z_delayed[4, :3] + [2.0, 0, 0]  # an exact boundary case at d_cr = 2
+    Y, mask = neighbour_matrix(z_now, z_delayed, 3, 2.0, 6)
+    for i in range(12):
+        Yi, mi = neighbour_matrix_single(i, z_now[i], z_delayed, 3, 2.0, 6)
+        np.testing.assert_array_equal(Yi, Y[i])
+        np.testing.assert_array_equal(mi, mask[i])
+
+
+def test_batched_over_time_and_trajectories_equals_per_snapshot():
+    rng = np.random.default_rng(2)
+    states = rng.normal(scale=4.0, size=(3, 7, 9, 4))
+    Y, mask = neighbour_matrices(states, 2, 5.0, 6, tau=2)
+    assert Y.shape == (3, 7, 9, 6, 4) and mask.shape == (3, 7, 9, 6)
+    for s in range(3):
+        for t in range(7):
+            Yr, mr = neighbour_matrix(states[s, t], states[s, max(t - 2, 0)], 2, 5.0, 6)
+            np.testing.assert_array_equal(Y[s, t], Yr)
+            np.testing.assert_array_equal(mask[s, t], mr)
+
+
+@pytest.mark.parametrize("bad", [dict(k=0), dict(tau=-1)])
+def test_invalid_arguments_are_refused(bad):
+    states = np.zeros((2, 2, 4))
+    with pytest.raises(ValueError):
+        neighbour_matrices(states, 2, 5.0, bad.get("k", 3), bad.get("tau", 0))
