@@ -1,0 +1,51 @@
+# knode_swarm_ros: `make demo` and `make test` each create or reuse $(VENV).
+# No system ROS 2 is needed: rclpy and the messages come from the ros-jazzy-* wheels.
+
+VENV ?= .venv
+PYTHON ?= python3
+PY := $(VENV)/bin/python
+VENV_PREFIX = $(abspath $(VENV))
+PYTEST_ARGS ?=
+
+# Every ROS process started from here stays on this machine.
+ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
+          AMENT_PREFIX_PATH="$(VENV_PREFIX)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
+
+.PHONY: all venv test demo bench clean distclean
+
+all: test
+
+venv: $(VENV)/.installed
+
+# Re-run when the pins or the packaging change (the data files, config/ among them,
+# are copied into $(VENV)/share at install time).
+$(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setup.cfg package.xml $(wildcard config/*)
+	@test -x $(PY) || { echo "creating $(VENV) with $$(command -v $(PYTHON)) ($$($(PYTHON) --version 2>&1))"; \
+	  $(PYTHON) -m venv $(VENV); }
+	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install -r requirements-dev.txt
+	$(PY) -m pip install -e . --no-deps
+	@# An editable install leaves out setup.py's data_files (the ament index marker,
+	@# package.xml, config/): copy them into the venv prefix, where ament_index_python
+	@# finds them with AMENT_PREFIX_PATH=$(VENV_PREFIX).
+	$(PY) -W ignore setup.py --quiet install_data --install-dir "$(VENV_PREFIX)" --force
+	@touch $@
+
+test: $(VENV)/.installed
+	$(ROS_ENV) $(PY) -m pytest -q tests $(PYTEST_ARGS)
+
+demo: $(VENV)/.installed
+	$(ROS_ENV) $(PY) -m training.demo
+
+bench: $(VENV)/.installed
+	@set -e; found=0; for f in bench/*.py; do \
+	  [ -f "$$f" ] || continue; found=1; echo "== $$f"; \
+	  $(ROS_ENV) PYTHONPATH="$(CURDIR)$${PYTHONPATH:+:$$PYTHONPATH}" $(PY) "$$f"; \
+	done; [ $$found = 1 ] || echo "no benchmarks under bench/"
+
+clean:
+	rm -rf build install log .pytest_cache *.egg-info
+	find . \( -path ./.git -o -path ./$(VENV) \) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)

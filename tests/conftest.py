@@ -1,0 +1,50 @@
+"""Shared pytest setup for knode_swarm_ros.
+
+Sections: environment for ROS processes started by tests, then fixtures. Add new
+fixtures in their own section below; keep this module free of heavy imports (torch,
+rclpy) so that collection stays fast and tests that need neither never load them.
+"""
+import itertools
+import os
+import sys
+
+import pytest
+
+# --- Environment -----------------------------------------------------------------
+# Set at import time, before any test module runs, so child processes inherit it.
+# ROS traffic never leaves this machine.
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+# The virtual environment is an ament prefix: the ros-jazzy-* wheels and this package
+# (`make` copies package.xml, the index marker and config/ there) register under
+# <sys.prefix>/share, so ament_index_python finds them once the prefix is listed.
+_ament = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+if sys.prefix not in _ament:
+    os.environ['AMENT_PREFIX_PATH'] = os.pathsep.join([sys.prefix] + _ament)
+
+# Note for tests that start processes: the ros-jazzy-* wheels re-exec Python with
+# LD_LIBRARY_PATH set and _ROS_WHEELS_BOOTSTRAP_COMPLETE=1. A child must inherit both
+# or neither; start children with a copy of os.environ and edit other keys only.
+
+
+# --- ROS domains ------------------------------------------------------------------
+# ROS_DOMAIN_ID 0 is everyone's default: never used here. 1..101 are valid on Linux
+# with the default port mapping.
+_DOMAIN_MIN, _DOMAIN_MAX = 1, 101
+_domain_counter = itertools.count()
+
+
+def next_ros_domain_id():
+    """A domain id in 1..101, different for each call in this process (cycling after
+    101 calls) and offset by the process id so concurrent pytest runs rarely collide."""
+    span = _DOMAIN_MAX - _DOMAIN_MIN + 1
+    return _DOMAIN_MIN + (os.getpid() % 100 + next(_domain_counter)) % span
+
+
+@pytest.fixture
+def ros_domain_id(monkeypatch):
+    """A ROS_DOMAIN_ID of this test's own (int), also set in os.environ for the test
+    (and so for the processes it starts); the previous value returns afterwards."""
+    domain_id = next_ros_domain_id()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
+    return domain_id

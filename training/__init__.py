@@ -1,0 +1,1 @@
+"""Offline tooling: datasets, KNODE training, evaluation and figures (torch, matplotlib)."""
