@@ -14,20 +14,35 @@ Public API (shapes: S swarms, T steps, n robots, d state entries, k rows, m comm
 * metrics: :func:`avd`, :func:`amd`, :func:`pod_energy`, :func:`pod_kld`.
 * trajectory files: :func:`load_trajectories`, :func:`save_trajectories`, :class:`TrajectoryError`.
 """
-from .delay_buffer import DelayBuffer
-from .knowledge import AvoidanceGain, collision_avoidance, wall_avoidance
-from .metrics import amd, avd, pod_energy, pod_kld
-from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
-from .policy import DEFAULTS, KNODEPolicy, PolicyConfig
-from .policy_io import LoadedPolicy, PolicyError, export_policy, load_policy, shipped_policy_path
-from .rollout import rollout, zoh_step
-from .scenarios import SCENARIOS, Scenario, get_scenario
-from .trajectory import (TrajectoryError, TrajectoryFile, load_trajectories, parse_trajectory_ref,
-                         save_trajectories)
+import importlib
+from typing import Any
 
-__all__ = ["DelayBuffer", "AvoidanceGain", "collision_avoidance", "wall_avoidance", "amd", "avd",
-           "pod_energy", "pod_kld", "neighbour_matrices", "neighbour_matrix", "neighbour_matrix_single",
-           "DEFAULTS", "KNODEPolicy", "PolicyConfig", "LoadedPolicy", "PolicyError", "export_policy",
-           "load_policy", "shipped_policy_path", "rollout", "zoh_step", "SCENARIOS", "Scenario",
-           "get_scenario", "TrajectoryError", "TrajectoryFile", "load_trajectories",
-           "parse_trajectory_ref", "save_trajectories"]
+# Names are resolved lazily (PEP 562) so that numpy-only users (dataset generation, the
+# simulator, the recorder) do not pay for importing torch.
+_EXPORTS = {
+    "delay_buffer": ["DelayBuffer"],
+    "knowledge": ["AvoidanceGain", "collision_avoidance", "wall_avoidance"],
+    "metrics": ["amd", "avd", "pod_energy", "pod_kld"],
+    "network": ["neighbour_matrices", "neighbour_matrix", "neighbour_matrix_single"],
+    "policy": ["DEFAULTS", "KNODEPolicy", "PolicyConfig"],
+    "policy_io": ["LoadedPolicy", "PolicyError", "export_policy", "load_policy", "shipped_policy_path"],
+    "rollout": ["rollout", "zoh_step"],
+    "scenarios": ["SCENARIOS", "Scenario", "get_scenario"],
+    "trajectory": ["TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref",
+                   "save_trajectories"],
+}
+_MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_MODULE_OF)
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

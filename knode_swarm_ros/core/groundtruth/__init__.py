@@ -1,0 +1,130 @@
+"""Ground-truth swarms of the paper (numpy only): what the learner observes but never sees.
+
+* ``flock2d``: Tanner, Jadbabaie and Pappas' global flocking controller, classical RK4,
+  dt = 0.01 (:mod:`.tanner`); presets (variants) ``paper`` and ``gym_flock``.
+* ``boids3d``: Reynolds boids after Sebastian Lague's Unity implementation, dt = 1/60,
+  walls of the cube [-5, 5]^3 (:mod:`.boids`); presets ``paper`` and ``published``.
+
+:func:`simulate` turns either into observation arrays ``[S, T, n, d]`` for trajectory files;
+:class:`TannerSwarm` and :class:`BoidsSwarm` step one or S swarms at a time (the simulator's
+ground-truth mode). See docs/groundtruth.md.
+"""
+from __future__ import annotations
+
+from typing import Any, Dict, Optional
+
+import numpy as np
+
+from ..scenarios import get_scenario
+from . import boids, tanner
+from .boids import DISCARD_FRAMES, PRESETS as BOIDS_PRESETS, BoidsParams, BoidsSwarm
+from .tanner import VARIANTS as TANNER_VARIANTS, TannerSwarm
+
+__all__ = ["simulate", "parameters", "presets", "default_preset", "TannerSwarm", "BoidsSwarm",
+           "BoidsParams", "DISCARD_FRAMES", "tanner", "boids"]
+
+
+def presets(scenario: str) -> tuple:
+    """Names of the presets of ``scenario`` (flock2d: its variants), the paper's first."""
+    get_scenario(scenario)
+    return tuple(TANNER_VARIANTS) if scenario == "flock2d" else tuple(BOIDS_PRESETS)
+
+
+def default_preset(scenario: str) -> str:
+    """``paper`` for both scenarios."""
+    return presets(scenario)[0]
+
+
+def _check_preset(scenario: str, preset: str) -> None:
+    if preset not in presets(scenario):
+        kind = "variant" if scenario == "flock2d" else "preset"
+        raise ValueError(f"unknown {scenario} {kind} {preset!r}; known: {', '.join(presets(scenario))}")
+
+
+def _check_min_separation(scenario: str, min_separation: Optional[float]) -> None:
+    if min_separation is None:
+        return
+    if scenario != "flock2d":
+        raise ValueError("min_separation applies to flock2d only")
+    if not (np.isfinite(min_separation) and min_separation > 0):
+        raise ValueError(f"min_separation must be a positive number, got {min_separation!r}")
+
+
+def parameters(scenario: str, preset: str = "paper", min_separation: Optional[float] = None) -> Dict[str, Any]:
+    """Every parameter of the ground truth ``scenario``/``preset`` as a JSON-able dict (for ``meta``)."""
+    _check_preset(scenario, preset)
+    _check_min_separation(scenario, min_separation)
+    if scenario == "flock2d":
+        return {"model": "tanner_global", "variant": preset, "dt": tanner.DT, "integrator": "rk4_classical",
+                "accel_clip": tanner.variant_clip(preset), "v_max": tanner.V_MAX, "v_bias": tanner.V_BIAS,
+                "min_separation": min_separation,
+                "potential": "V(r) = 1/r^2 + log r^2",
+                **{k: v for k, v in TANNER_VARIANTS[preset].items() if k != "clip"}}
+    return {"model": "lague_boids", "preset": preset, "discard_frames": DISCARD_FRAMES,
+            "observation": "[p, v/|v|]", **BOIDS_PRESETS[preset].as_dict()}
+
+
+class _NoBar:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+
+def _progress_bar(enabled: bool, total: int, desc: str):
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm  # only here: robots importing the core need not have tqdm
+    return tqdm(total=total, desc=desc, unit="step", leave=False)
+
+
+def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: int,
+             preset: str = "paper", progress: bool = True, min_separation: Optional[float] = None) -> np.ndarray:
+    """Simulate ``trajectories`` independent swarms of ``robots`` robots, all stepped together.
+
+    Args:
+        scenario: ``flock2d`` or ``boids3d``.
+        steps: T, the number of recorded frames. flock2d: frame 0 is the initial condition,
+            followed by T - 1 RK4 steps of dt = 0.01. boids3d: frame 0 is the spawn; frames
+            0 .. 9 (DISCARD_FRAMES = 10 frames) are discarded as in the paper and frames
+            10 .. 9 + T are recorded, so 9 + T frames are stepped in all.
+        seed: seeds ``numpy.random.default_rng``; the only randomness is the initial condition.
+        preset: flock2d ``paper`` | ``gym_flock`` (initial conditions and acceleration clip);
+            boids3d ``paper`` | ``published`` (boid settings).
+        progress: show a tqdm progress bar on stderr.
+        min_separation: flock2d only; redraw initial positions until no pair is closer than
+            this (default None: the paper's draw, see :func:`tanner.initial_states`).
+
+    Returns:
+        float64 ``[trajectories, T, robots, d]``: flock2d z = [px, py, vx, vy] (d = 4);
+        boids3d z = [px, py, pz, hx, hy, hz] with h = v / |v| (d = 6).
+    """
+    get_scenario(scenario)
+    _check_preset(scenario, preset)
+    _check_min_separation(scenario, min_separation)
+    for name, value in (("trajectories", trajectories), ("robots", robots), ("steps", steps)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    trajectories, robots, steps = int(trajectories), int(robots), int(steps)
+    rng = np.random.default_rng(seed)
+    if scenario == "flock2d":
+        swarm = TannerSwarm(tanner.initial_states(rng, trajectories, robots, preset, min_separation), preset)
+        skip = 0
+    else:
+        swarm = BoidsSwarm.spawn(rng, trajectories, robots, BOIDS_PRESETS[preset])
+        skip = DISCARD_FRAMES
+    out = np.empty((trajectories, steps, robots, get_scenario(scenario).state_dim))
+    frame = swarm.observe()
+    with _progress_bar(progress, skip + steps - 1, f"{scenario} {preset}") as bar:
+        for _ in range(skip):
+            frame = swarm.step()
+            bar.update()
+        out[:, 0] = frame
+        for t in range(1, steps):
+            out[:, t] = swarm.step()
+            bar.update()
+    return out
