@@ -64,9 +64,10 @@ class PolicyConfig:
 
 
 # The paper's settings per scenario (flock2d: lambda = a + phi^2 for collisions;
-# boids3d: lambda = phi^2 for collisions and walls, tau = 1, d_cr = 2).
+# boids3d: lambda = phi^2 for collisions and walls, tau = 1, d_cr = 2). phi starts at 1,
+# never 0: phi = 0 is a stationary point of phi^2, where the gain would never train.
 DEFAULTS: Dict[str, Dict[str, Any]] = {
-    "flock2d": dict(k=6, d_cr=5.0, tau=0, command_limit=10.0, collision_a=1.0, collision_phi=0.0,
+    "flock2d": dict(k=6, d_cr=5.0, tau=0, command_limit=10.0, collision_a=1.0, collision_phi=1.0,
                     collision_d0=1.0, wall=False),
     "boids3d": dict(k=6, d_cr=2.0, tau=1, command_limit=10.0, collision_a=0.0, collision_phi=1.0,
                     collision_d0=1.0, wall=True, wall_a=0.0, wall_phi=1.0, wall_d0=1.0),

@@ -1,0 +1,258 @@
+"""Training: known answers of the one-step loss, gradients, resume, divergence guard, configs.
+
+Tiny data only (a few hundred samples); the whole module runs in a few seconds.
+"""
+import json
+import os
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("torchdiffeq")
+yaml = pytest.importorskip("yaml")
+
+from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, get_scenario, load_policy, rollout,  # noqa: E402
+                                  save_trajectories, zoh_step)
+from training.common import (ConfigError, build_policy, implied_command, loss_scales, make_samples,  # noqa: E402
+                             module_policy_fn, normalise_config, one_step_loss, predict_next)
+from training.train import DivergenceError, Trainer, main as train_main  # noqa: E402
+
+torch.set_num_threads(1)
+FLOCK = get_scenario("flock2d")
+BOIDS = get_scenario("boids3d")
+
+
+def _swarm(rng, S, n, spec):
+    z = np.zeros((S, n, spec.state_dim))
+    z[..., :spec.position_dim] = rng.uniform(-2, 2, size=(S, n, spec.position_dim))
+    if spec.name == "flock2d":
+        z[..., 2:] = rng.normal(0, 1, size=(S, n, 2))
+    else:
+        h = rng.normal(size=(S, n, 3))
+        z[..., 3:] = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    return z
+
+
+def _config(tmp_path, **sections):
+    raw = {"scenario": "flock2d", "seed": 3, "policy": {"hidden": 16, "d_cr": 3.0, "k": 4},
+           "data": {"val_trajectories": 1}, "training": {"epochs": 2, "batch_size": 64, "lr": 0.01, "threads": 1},
+           "selection": {"every": 1, "trajectories": 1}}
+    for key, value in sections.items():
+        raw.setdefault(key, {}).update(value) if isinstance(value, dict) else raw.__setitem__(key, value)
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    try:
+        return str(path), normalise_config(raw)
+    except ConfigError:
+        return str(path), None
+
+
+def _teacher_data(tmp_path, steps=40, trajectories=4, n=5, seed=0):
+    """Trajectories of a linear decentralised controller (alignment + cohesion on the neighbour rows)."""
+    def linear(Y, mask):
+        m = mask[:, 1:, None]
+        count = np.maximum(m.sum(1), 1)
+        dv = ((Y[:, 1:, 2:] - Y[:, :1, 2:]) * m).sum(1) / count
+        dp = ((Y[:, 1:, :2] - Y[:, :1, :2]) * m).sum(1) / count
+        return 1.5 * dv + 0.5 * dp
+    z0 = _swarm(np.random.default_rng(seed), trajectories, n, FLOCK)
+    states = rollout(linear, z0, steps - 1, "flock2d", 3.0, 4, 0, 0.01)
+    path = tmp_path / "teacher.npz"
+    save_trajectories(path, states, 0.01, "flock2d", {"split": {"train": list(range(trajectories - 1)),
+                                                                 "test": [trajectories - 1]}})
+    return str(path), linear
+
+
+# ----------------------------------------------------------------------------- known answers
+
+@pytest.mark.parametrize("spec", [FLOCK, BOIDS])
+def test_zero_network_one_step_is_knowledge_only_zoh(spec):
+    """With the network zeroed, the predicted state is the exact ZOH step of the knowledge command."""
+    torch.manual_seed(0)
+    policy = KNODEPolicy(PolicyConfig(spec.name, k=4, d_cr=3.0, hidden=8, collision_phi=1.0))
+    for p in policy.net.parameters():
+        torch.nn.init.zeros_(p)
+    states = _swarm(np.random.default_rng(1), 2, 6, spec)[:, None].repeat(2, axis=1)
+    s = make_samples(states, spec, 3.0, 4, 0)
+    with torch.no_grad():
+        pred = predict_next(policy, spec, spec.dt, s.Y, s.mask, s.clean_own, "zoh").double().numpy()
+        command = torch.clamp(policy.knowledge(s.Y, s.mask), -10, 10).double().numpy()
+    assert np.abs(command).max() > 0  # the knowledge term is active on this configuration
+    expected = zoh_step(s.clean_own.double().numpy(), command, spec, spec.dt)
+    np.testing.assert_allclose(pred, expected, atol=1e-5)
+
+
+def test_loss_vanishes_on_data_of_the_policy_itself():
+    """Roll a random policy out with core.rollout: at its own parameters the ZOH loss is ~0."""
+    torch.manual_seed(1)
+    policy = KNODEPolicy(PolicyConfig("flock2d", k=4, d_cr=3.0, hidden=16, collision_phi=0.5))
+    z0 = _swarm(np.random.default_rng(2), 2, 5, FLOCK)
+    states = rollout(module_policy_fn(policy), z0, 30, "flock2d", 3.0, 4, 0, 0.01)
+    s = make_samples(states, FLOCK, 3.0, 4, 0)
+    scales = loss_scales(FLOCK, 0.01, "command")
+    with torch.no_grad():
+        own = s.Y[:, 0]
+        at_truth = one_step_loss(predict_next(policy, FLOCK, 0.01, s.Y, s.mask, own, "zoh"), s.target, scales)
+        for p in policy.net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+        perturbed = one_step_loss(predict_next(policy, FLOCK, 0.01, s.Y, s.mask, own, "zoh"), s.target, scales)
+    assert float(at_truth) < 1e-3          # float32 rounding of the observations only
+    assert float(perturbed) > 100 * float(at_truth)
+
+
+def test_direct_gradient_matches_adjoint():
+    torch.manual_seed(2)
+    policy = KNODEPolicy(PolicyConfig("flock2d", k=4, d_cr=3.0, hidden=8, collision_phi=0.7))
+    states = _swarm(np.random.default_rng(3), 1, 6, FLOCK)[:, None].repeat(2, axis=1)
+    s = make_samples(states, FLOCK, 3.0, 4, 0)
+    scales = loss_scales(FLOCK, 0.01, "command")
+    target = s.target + 0.001 * torch.randn_like(s.target)
+    grads = {}
+    for solver in ("rk4", "adjoint", "zoh"):
+        policy.zero_grad()
+        loss = one_step_loss(predict_next(policy, FLOCK, 0.01, s.Y, s.mask, s.clean_own, solver), target, scales)
+        loss.backward()
+        grads[solver] = torch.cat([(p.grad if p.grad is not None else torch.zeros_like(p)).flatten()
+                                    for p in policy.parameters()])
+    rel = (grads["rk4"] - grads["adjoint"]).norm() / grads["rk4"].norm()
+    assert rel < 1e-3
+    # the exact ZOH step and rk4 with the own state moving differ only at O(dt)
+    assert (grads["rk4"] - grads["zoh"]).norm() / grads["rk4"].norm() < 0.2
+
+
+def test_implied_command_inverts_zoh():
+    rng = np.random.default_rng(4)
+    z = _swarm(rng, 1, 5, FLOCK)[0]
+    c = rng.normal(size=(5, 2))
+    nxt = zoh_step(z, c, FLOCK, 0.01)
+    got = implied_command(torch.tensor(z), torch.tensor(nxt), FLOCK, 0.01).numpy()
+    np.testing.assert_allclose(got, c, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- training runs
+
+def test_training_recovers_a_linear_controller(tmp_path):
+    data, linear = _teacher_data(tmp_path, steps=60, trajectories=5, n=6)
+    cfg_path, cfg = _config(tmp_path, policy={"collision": False, "hidden": 32},
+                            noise={"mode": "none"}, selection={"every": 0},
+                            training={"epochs": 40, "batch_size": 128, "lr": 0.01, "lr_min": 0.001})
+    trainer = Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
+    trainer.run()
+    log = [json.loads(line) for line in open(tmp_path / "run" / "metrics.jsonl")]
+    assert log[-1]["train_loss"] < log[0]["train_loss"] / 100
+    policy = load_policy(tmp_path / "run" / "policy.pt")
+    s = trainer.train
+    want = linear(s.Y.double().numpy(), s.mask.double().numpy())
+    got = policy(s.Y.numpy(), s.mask.numpy())
+    rms = np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2))
+    assert rms < 0.1, (rms, log[0]["train_loss"], log[-1]["train_loss"])
+
+
+def test_exported_policy_matches_module_and_has_provenance(tmp_path):
+    data, _ = _teacher_data(tmp_path)
+    cfg_path, cfg = _config(tmp_path)
+    trainer = Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
+    trainer.run()
+    loaded = load_policy(tmp_path / "run" / "policy.pt", expect={"scenario": "flock2d", "k": 4})
+    best = trainer.best["state"]
+    module = build_policy(cfg)
+    module.load_state_dict(best)
+    s = trainer.train
+    with torch.no_grad():
+        want = module(s.Y, s.mask).numpy()
+    np.testing.assert_allclose(loaded(s.Y.numpy(), s.mask.numpy()), want, atol=1e-6)
+    prov = loaded.meta["provenance"]
+    assert prov["config"] == cfg and prov["data_file"] == "teacher.npz" and "git_commit" in prov
+    for name in ("config.yaml", "metrics.jsonl", "checkpoint.pt", "summary.json"):
+        assert (tmp_path / "run" / name).is_file()
+
+
+def test_fixed_seed_is_deterministic_and_resume_matches(tmp_path):
+    data, _ = _teacher_data(tmp_path)
+    _, cfg = _config(tmp_path, training={"epochs": 3}, selection={"every": 0})
+    quiet = dict(progress=False, log=lambda *a: None)
+    Trainer(cfg, data, str(tmp_path / "a"), **quiet).run()
+    Trainer(cfg, data, str(tmp_path / "b"), **quiet).run()
+    first = Trainer(cfg, data, str(tmp_path / "c"), **quiet)
+    assert first.run(stop_after=1) is None
+    Trainer(cfg, data, str(tmp_path / "c"), resume=True, **quiet).run()
+    states = [torch.load(tmp_path / d / "checkpoint.pt", weights_only=False)["model"] for d in "abc"]
+    for key in states[0]:
+        assert torch.equal(states[0][key], states[1][key]), key
+        assert torch.equal(states[0][key], states[2][key]), key
+    logs = [[json.loads(line)["train_loss"] for line in open(tmp_path / d / "metrics.jsonl")] for d in "ac"]
+    assert logs[0] == logs[1]
+
+
+def test_divergence_guard_on_absurd_learning_rate(tmp_path, capsys):
+    data, _ = _teacher_data(tmp_path)
+    cfg_path, _ = _config(tmp_path, training={"epochs": 5, "lr": 1.0e6, "grad_clip": None})
+    rc = train_main(["--config", cfg_path, "--data", data, "--out", str(tmp_path / "run"), "--no-progress"])
+    assert rc == 3
+    assert "diverged" in capsys.readouterr().err
+    assert not (tmp_path / "run" / "policy.pt").exists()
+
+
+def test_divergence_guard_on_poisoned_data(tmp_path):
+    data, _ = _teacher_data(tmp_path)
+    from knode_swarm_ros.core import load_trajectories
+    f = load_trajectories(data)
+    states = f.states.copy()
+    states[0, 20:, 0, 2:] = 1e30  # an absurd glitch in one robot's velocity
+    poisoned = tmp_path / "poisoned.npz"
+    save_trajectories(poisoned, states, f.dt, f.scenario, f.meta)
+    _, cfg = _config(tmp_path, data={"drop_saturated": False}, training={"epochs": 2, "batch_size": "full"})
+    with pytest.raises(DivergenceError, match="not finite|exploding"):
+        Trainer(cfg, str(poisoned), str(tmp_path / "run"), progress=False, log=lambda *a: None).run()
+
+
+@pytest.mark.parametrize("section, value, field", [
+    ({"training": {"solver": "euler"}}, None, "training.solver"),
+    ({"training": {"lr": -1}}, None, "training.lr"),
+    ({"noise": {"mode": "loud"}}, None, "noise.mode"),
+    ({"policy": {"k": 0}}, None, "k"),
+    ({"policy": {"radius": 3}}, None, "policy.radius"),
+    ({"bogus": 1}, None, "bogus"),
+    ({"scenario": "flock9d"}, None, "scenario"),
+    ({"augment": {"rotate": True}, "scenario": "boids3d"}, None, "augment.rotate"),
+])
+def test_bad_config_names_the_field(tmp_path, section, value, field):
+    raw = {"scenario": "flock2d"}
+    for key, val in section.items():
+        raw[key] = val
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        normalise_config(raw)
+
+
+def test_cli_bad_config_and_data_exit_2(tmp_path, capsys):
+    data, _ = _teacher_data(tmp_path)
+    cfg_path, _ = _config(tmp_path, training={"batch_size": 0})
+    assert train_main(["--config", cfg_path, "--data", data, "--out", str(tmp_path / "r")]) == 2
+    assert "training.batch_size" in capsys.readouterr().err
+    cfg_path, _ = _config(tmp_path)
+    assert train_main(["--config", cfg_path, "--data", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "r")]) == 2
+    assert "missing.npz" in capsys.readouterr().err
+    cfg_path, _ = _config(tmp_path, scenario="boids3d", augment={"rotate": False})
+    assert train_main(["--config", cfg_path, "--data", data, "--out", str(tmp_path / "r")]) == 2
+    assert "scenario" in capsys.readouterr().err
+
+
+def test_grid_cells_are_resumable_and_skip_finished(tmp_path):
+    from training.grid import main as grid_main
+    data, _ = _teacher_data(tmp_path)
+    cfg_path, _ = _config(tmp_path, training={"epochs": 1}, selection={"every": 0})
+    args = ["--config", cfg_path, "--data", data, "--out", str(tmp_path / "grid"), "--d-cr", "2", "3",
+            "--k", "3", "--trajectories", "1"]
+    (tmp_path / "grid" / "dcr3_k3").mkdir(parents=True)
+    (tmp_path / "grid" / "dcr3_k3" / ".lock").write_text("123")   # claimed by another worker
+    assert grid_main(args) == 0
+    results = json.loads((tmp_path / "grid" / "results.json").read_text())
+    assert results["finished"] == ["dcr2_k3"]
+    stamp = os.path.getmtime(tmp_path / "grid" / "dcr2_k3" / "cell.json")
+    (tmp_path / "grid" / "dcr3_k3" / ".lock").unlink()
+    assert grid_main(args) == 0
+    assert os.path.getmtime(tmp_path / "grid" / "dcr2_k3" / "cell.json") == stamp   # skipped
+    results = json.loads((tmp_path / "grid" / "results.json").read_text())
+    assert sorted(results["finished"]) == ["dcr2_k3", "dcr3_k3"]
+    assert (tmp_path / "grid" / "heatmap_avd_final_mean.png").is_file()

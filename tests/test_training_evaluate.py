@@ -1,0 +1,35 @@
+"""training.evaluate end to end on tiny data: figures, results.json, summary.md (both scenarios)."""
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("matplotlib")
+
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, DEFAULTS, export_policy, save_trajectories  # noqa: E402
+from knode_swarm_ros.core.groundtruth import simulate  # noqa: E402
+from training.evaluate import main  # noqa: E402
+
+
+@pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
+def test_evaluate_writes_results_and_figures(tmp_path, scenario):
+    torch.manual_seed(0)
+    policy = KNODEPolicy(PolicyConfig(scenario, **{**DEFAULTS[scenario], "hidden": 8}))
+    pol = tmp_path / "p.pt"
+    export_policy(policy, pol, policy.metadata())
+    states = simulate(scenario, 3, 5, 30, seed=1, progress=False)
+    data = tmp_path / "d.npz"
+    save_trajectories(data, states, policy.metadata()["dt"], scenario, {"split": {"train": [0], "test": [1, 2]}})
+    out = tmp_path / "eval"
+    args = ["--policy", str(pol), "--data", str(data), "--out", str(out), "--scaling", "--sizes", "4", "6",
+            "--ics", "2", "--scaling-steps", "15"]
+    assert main(args) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["test_trajectories"] == [1, 2] and results["steps"] == 29
+    assert len(results["per_trajectory"]["amd_final"]) == 2
+    assert [r["robots"] for r in results["scaling"]["rows"]] == [4, 6]
+    names = ["metrics.png", "snapshots.png", "scaling.png", "summary.md"] + (["pod.png"] if scenario == "boids3d" else [])
+    for name in names:
+        assert (out / name).stat().st_size > 0, name
+    assert np.isfinite(results["final"]["amd_final"]["mean"])
