@@ -95,3 +95,17 @@ def test_any_swarm_size_and_bad_shapes():
         assert rollout(zero_policy(2), np.zeros((n, 4)), 2, "flock2d", 5.0, 6, 0, 0.01).shape == (3, n, 4)
     with pytest.raises(ValueError, match="z0"):
         rollout(zero_policy(2), np.zeros((3, 6)), 2, "flock2d", 5.0, 6, 0, 0.01)
+
+
+@pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
+def test_torch_zoh_step_equals_the_numpy_one(scenario):
+    torch = pytest.importorskip("torch")
+    from knode_swarm_ros.core.rollout import zoh_step_torch
+
+    spec = get_scenario(scenario)
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=(7, spec.state_dim))
+    c = rng.normal(size=(7, spec.command_dim))
+    c[3] = 0.0  # zero velocity command keeps the heading
+    got = zoh_step_torch(torch.tensor(z), torch.tensor(c), spec, 0.02).numpy()
+    np.testing.assert_allclose(got, zoh_step(z, c, spec, 0.02), rtol=0, atol=1e-15)

@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, amd, avd, get_scenario, neighbour_matrices,
                                   pod_kld, rollout)
 from knode_swarm_ros.core.scenarios import Scenario
+from knode_swarm_ros.core.rollout import heading_torch, zoh_step_torch
 
 
 class ConfigError(ValueError):
@@ -280,22 +281,6 @@ def augment_batch(Y: Tensor, mask: Tensor, own: Tensor, target: Tensor, spec: Sc
 
 # ----------------------------------------------------------------------------- one-step prediction
 
-def zoh_step_torch(z: Tensor, command: Tensor, spec: Scenario, dt: float) -> Tensor:
-    """Torch twin of :func:`knode_swarm_ros.core.zoh_step` for ``z [B, d]``, ``command [B, m]``."""
-    p = spec.position_dim
-    if spec.command == "acceleration":
-        v = z[:, p:]
-        return torch.cat([z[:, :p] + v * dt + 0.5 * command * dt * dt, v + command * dt], dim=1)
-    new_p = z[:, :p] + command * dt
-    return torch.cat([new_p, _heading(command, z[:, p:])], dim=1)
-
-
-def _heading(c: Tensor, fallback: Tensor) -> Tensor:
-    speed = torch.linalg.vector_norm(c, dim=1, keepdim=True)
-    moving = speed > 0
-    return torch.where(moving, c / speed.clamp(min=1e-12), fallback)
-
-
 class HeldNeighbourField(nn.Module):
     """Hybrid vector field of one robot over one step, neighbours held at their observed rows.
 
@@ -351,7 +336,7 @@ def predict_next(policy: KNODEPolicy, spec: Scenario, dt: float, Y: Tensor, mask
         z1 = torchdiffeq.odeint(field, own, t, **kwargs)[-1]
     if spec.command == "velocity":
         p = spec.position_dim
-        z1 = torch.cat([z1[:, :p], _heading(z1[:, :p] - own[:, :p], own[:, p:])], dim=1)
+        z1 = torch.cat([z1[:, :p], heading_torch(z1[:, :p] - own[:, :p], own[:, p:])], dim=1)
     return z1
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from .network import neighbour_matrix
 from .scenarios import Scenario, get_scenario
 
-__all__ = ["zoh_step", "rollout", "policy_commands", "PolicyFn"]
+__all__ = ["zoh_step", "zoh_step_torch", "rollout", "policy_commands", "PolicyFn"]
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -40,6 +40,26 @@ def zoh_step(states: np.ndarray, command: np.ndarray, scenario: Scenario, dt: fl
         heading = np.divide(c, speed, out=np.zeros_like(c), where=moving)
         new[..., scenario.heading] = np.where(moving, heading, new[..., scenario.heading])
     return new
+
+
+def zoh_step_torch(z, command, scenario: Scenario, dt: float):
+    """:func:`zoh_step` for torch tensors ``z [..., d]``, ``command [..., m]``, differentiable
+    (training's one-step-ahead prediction integrates exactly what deployment does)."""
+    import torch
+
+    p = scenario.position_dim
+    if scenario.command == "acceleration":
+        v = z[..., p:]
+        return torch.cat([z[..., :p] + v * dt + 0.5 * command * dt * dt, v + command * dt], dim=-1)
+    return torch.cat([z[..., :p] + command * dt, heading_torch(command, z[..., p:])], dim=-1)
+
+
+def heading_torch(c, fallback):
+    """Unit vector ``c / |c|`` ``[..., m]``, ``fallback`` where ``c`` is zero."""
+    import torch
+
+    speed = torch.linalg.vector_norm(c, dim=-1, keepdim=True)
+    return torch.where(speed > 0, c / speed.clamp(min=1e-12), fallback)
 
 
 def policy_commands(policy: PolicyFn, z_now: np.ndarray, z_delayed: np.ndarray, scenario: Scenario,
