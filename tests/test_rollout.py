@@ -109,3 +109,12 @@ def test_torch_zoh_step_equals_the_numpy_one(scenario):
     c[3] = 0.0  # zero velocity command keeps the heading
     got = zoh_step_torch(torch.tensor(z), torch.tensor(c), spec, 0.02).numpy()
     np.testing.assert_allclose(got, zoh_step(z, c, spec, 0.02), rtol=0, atol=1e-15)
+
+
+def test_package_attribute_rollout_is_the_function_even_after_importing_the_submodule():
+    import importlib
+
+    importlib.import_module("knode_swarm_ros.core.rollout")
+    from knode_swarm_ros.core import rollout as exported
+
+    assert callable(exported) and exported.__name__ == "rollout"

@@ -17,22 +17,28 @@ Public API (shapes: S swarms, T steps, n robots, d state entries, k rows, m comm
 import importlib
 from typing import Any
 
-# Names are resolved lazily (PEP 562) so that numpy-only users (dataset generation, the
-# simulator, the recorder) do not pay for importing torch.
-_EXPORTS = {
-    "delay_buffer": ["DelayBuffer"],
+# numpy-only parts are imported eagerly. (The function ``rollout`` must be bound here, after
+# its submodule: importing a submodule sets the package attribute of the same name.)
+from .delay_buffer import DelayBuffer
+from .metrics import amd, avd, pod_energy, pod_kld
+from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
+from .rollout import rollout, zoh_step
+from .scenarios import SCENARIOS, Scenario, get_scenario
+from .trajectory import (TrajectoryError, TrajectoryFile, load_trajectories, parse_trajectory_ref,
+                         save_trajectories)
+
+# The torch-based parts resolve lazily (PEP 562), so that numpy-only users (dataset
+# generation, the simulator, the recorder) do not pay for importing torch.
+_LAZY = {
     "knowledge": ["AvoidanceGain", "collision_avoidance", "wall_avoidance"],
-    "metrics": ["amd", "avd", "pod_energy", "pod_kld"],
-    "network": ["neighbour_matrices", "neighbour_matrix", "neighbour_matrix_single"],
     "policy": ["DEFAULTS", "KNODEPolicy", "PolicyConfig"],
     "policy_io": ["LoadedPolicy", "PolicyError", "export_policy", "load_policy", "shipped_policy_path"],
-    "rollout": ["rollout", "zoh_step"],
-    "scenarios": ["SCENARIOS", "Scenario", "get_scenario"],
-    "trajectory": ["TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref",
-                   "save_trajectories"],
 }
-_MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
-__all__ = sorted(_MODULE_OF)
+_MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
+__all__ = sorted(list(_MODULE_OF) + [
+    "DelayBuffer", "amd", "avd", "pod_energy", "pod_kld", "neighbour_matrices", "neighbour_matrix",
+    "neighbour_matrix_single", "rollout", "zoh_step", "SCENARIOS", "Scenario", "get_scenario",
+    "TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref", "save_trajectories"])
 
 
 def __getattr__(name: str) -> Any:
