@@ -48,3 +48,12 @@ def ros_domain_id(monkeypatch):
     domain_id = next_ros_domain_id()
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
     return domain_id
+
+
+# --- Markers (added with the ROS nodes; owner: knode_swarm_ros/nodes) ------------------
+# `ros`: tests that start ROS 2 nodes, in this process on an isolated domain or as
+# separate processes (tests/test_ros_*.py). Deselect them with `pytest -m "not ros"`.
+def pytest_configure(config):
+    config.addinivalue_line(
+        'markers', 'ros: starts ROS 2 nodes (in-process rclpy or multi-process swarms); '
+                   'deselect with -m "not ros"')

@@ -28,7 +28,7 @@ EXECUTABLES = ('agent', 'simulator', 'recorder', 'swarm')
 REPO = Path(__file__).resolve().parents[1]
 
 # Tighten here once knode_swarm_ros/nodes/agent.py is the real node.
-ACCEPT_PLACEHOLDER_NODES = True
+ACCEPT_PLACEHOLDER_NODES = False
 PLACEHOLDER_EXIT_CODE = 2
 PLACEHOLDER_MESSAGE = 'node not available yet'
 AGENT_ARGS = ('--ros-args', '-p', 'id:=3')

@@ -1,0 +1,287 @@
+"""The ``agent`` executable: one robot's learnt controller as a ROS 2 node.
+
+``ros2 run knode_swarm_ros agent --ros-args -p id:=3 --params-file config/agent_flock2d.yaml``
+
+Subscribes to every robot's ``robot_<j>/odom`` (its own included), publishes
+``robot_<id>/cmd_accel`` (flock2d, AccelStamped) or ``robot_<id>/cmd_vel`` (boids3d,
+TwistStamped) stamped with the own state's stamp, and ``robot_<id>/agent_status`` (JSON:
+readiness and counters). All buffering and maths live in :class:`AgentLogic`; this node only
+declares parameters, converts messages and keeps time. The node is called ``agent_<id>`` when
+``-p id:=N`` is on the command line.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from functools import partial
+
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from . import qos
+from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
+from .common import (EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MODES, ConfigError, agent_status_topic,
+                     command_topic, odom_topic, robot_frame, robot_id_list, status_json)
+from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
+from .executor import make_executor, spin_until
+from .params import declare, declare_int_array, node_name_from_args
+
+__all__ = ['AgentNode', 'main', 'load_agent_policy']
+
+_LOG_EVERY_S = 5.0
+_EXPLAIN = {
+    'malformed': 'that could not be decoded as nav_msgs/Odometry',
+    'unknown_id': 'from a robot that is not part of the swarm',
+    'bad_size': 'of the wrong size',
+    'non_finite': 'with non-finite values',
+    'too_old': 'older than state_timeout',
+    'too_future': 'stamped further ahead of the clock than future_tolerance',
+}
+
+
+def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float):
+    """Load the policy and check the optional parameters against its metadata.
+
+    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too).
+    ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
+    ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
+
+    Raises:
+        ConfigError: missing, corrupt or mismatched policy file; the message names the
+            parameter or the file and both values.
+    """
+    from ..core.policy_io import PolicyError, load_policy, shipped_policy_path  # torch: only here
+    if not path:
+        scenario = scenario or 'flock2d'
+        try:
+            path = str(shipped_policy_path(scenario))
+        except PolicyError as exc:
+            raise ConfigError(f"parameter 'policy' is empty, so the shipped policy of scenario "
+                              f"{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt") from None
+    try:
+        policy = load_policy(path)
+    except PolicyError as exc:
+        raise ConfigError(f"parameter 'policy': {exc}") from None
+    wanted = {'scenario': scenario or None, 'k': k if k > 0 else None, 'd_cr': d_cr if d_cr > 0 else None,
+              'tau': tau if tau >= 0 else None, 'dt': dt if dt > 0 else None}
+    for key, value in wanted.items():
+        if value is None:
+            continue
+        got = policy.meta[key]
+        same = math.isclose(float(got), float(value), rel_tol=1e-9) if key in ('d_cr', 'dt') else got == value
+        if not same:
+            raise ConfigError(f'parameter {key!r} = {value!r} contradicts the policy file {path}, '
+                              f'whose knode.json has {key} = {got!r} (leave {key!r} unset to use the '
+                              f"policy's value)")
+    return policy
+
+
+class AgentNode(Node):
+    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md)."""
+
+    def __init__(self, node_name: str = 'agent', **kwargs):
+        super().__init__(node_name, **kwargs)
+        robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
+        if robot_id < 0:
+            raise ConfigError("parameter 'id' is required: pass -p id:=N")
+        robots = declare(self, 'robots', 10, 'swarm size: robot ids are 0 .. robots-1 (unless robot_ids is set)',
+                         int_range=(1, 10_000))
+        robot_ids = declare_int_array(self, 'robot_ids', "the swarm's robot ids (overrides 'robots')")
+        scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's; with policy "
+                           'empty too: flock2d)', choices=('', 'flock2d', 'boids3d'))
+        policy_path = declare(self, 'policy', '', 'TorchScript policy file (empty: the shipped policy of scenario)')
+        mode = declare(self, 'mode', 'realtime', 'lockstep: answer each own state once every needed neighbour '
+                       'state is here; realtime: a timer at control_rate', choices=MODES)
+        control_rate = declare(self, 'control_rate', 20.0, 'realtime control rate in Hz (on the ROS clock)',
+                               float_range=(0.01, 1000.0))
+        state_timeout = declare(self, 'state_timeout', 0.5, 'seconds after which a silent neighbour leaves the '
+                                'neighbour set and a stale own state gives a zero command', float_range=(1e-3, 3600.0))
+        future_tolerance = declare(self, 'future_tolerance', 0.5, 'states stamped more than this many seconds '
+                                   'ahead of the clock are dropped', float_range=(0.0, 3600.0))
+        command_limit = declare(self, 'command_limit', 0.0, 'per-axis command saturation (0: the policy\'s limit); '
+                                'the tighter of this and the policy\'s limit applies', float_range=(0.0, 1e9))
+        k = declare(self, 'k', 0, "rows of Y (0: the policy's; another value must equal it)", int_range=(0, 1000))
+        d_cr = declare(self, 'd_cr', 0.0, "communication radius (0: the policy's; another value must equal it)",
+                       float_range=(0.0, 1e9))
+        tau = declare(self, 'tau', -1, "delay in steps (-1: the policy's; another value must equal it)",
+                      int_range=(-1, 100_000))
+        dt = declare(self, 'dt', 0.0, "seconds per step (0: the policy's; another value must equal it)",
+                     float_range=(0.0, 3600.0))
+        parity_batch = declare(self, 'parity_batch', True, 'lockstep: evaluate the policy in a batch shaped like the '
+                               "offline rollout's, so lockstep runs equal core.rollout bit for bit")
+        threads = declare(self, 'torch_threads', 1, 'torch intra-op threads', int_range=(1, 256))
+        status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
+                                float_range=(0.01, 3600.0))
+        self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
+
+        ids = robot_id_list(robots, robot_ids)
+        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
+        config.validate()
+
+        import torch  # here, not at module level: parameter errors come without the torch import
+        torch.set_num_threads(threads)
+        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt)
+        self.logic = AgentLogic(config, policy)
+        self.spec = self.logic.spec
+        self._warm_up()
+
+        self.mode = mode
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._drops = {reason: [0, 0.0, ''] for reason in DROP_REASONS}  # count since log, last log, detail
+        self._last_log = {}
+        self._announced_ready = False
+
+        self.cmd_pub = self.create_publisher(command_msg_type(self.spec), command_topic(robot_id, self.spec.command),
+                                             qos.COMMAND)
+        self.status_pub = self.create_publisher(String, agent_status_topic(robot_id), qos.STATUS)
+        # raw=True: serialized bytes, decoded by conversions.odom_from_cdr (3x cheaper than rclpy's)
+        self.odom_subs = [self.create_subscription(Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM,
+                                                   raw=True) for rid in ids]
+        if mode == 'realtime':
+            self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
+        else:
+            self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
+        self.status_timer = self.create_timer(status_period, self._publish_status, clock=self._wall)
+        self.get_logger().info(
+            f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} '
+            f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
+            f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}')
+        self._publish_status()
+
+    def _warm_up(self) -> None:
+        import numpy as np
+        Y = np.zeros((self.logic.k, self.spec.state_dim))
+        mask = np.zeros(self.logic.k, dtype=bool)
+        mask[0] = True
+        self.logic.evaluate(Y, mask)
+
+    # --- callbacks -----------------------------------------------------------------
+    def _on_odom(self, topic_robot: int, data: bytes) -> None:
+        try:
+            stamp, frame, z = odom_from_cdr(data, self.spec)
+        except CdrError as exc:
+            self.logic.malformed()
+            self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
+            return
+        robot = topic_robot if frame in ('', robot_frame(topic_robot)) else None
+        now = self.get_clock().now().nanoseconds
+        outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
+        if outcome in self._drops:
+            detail = (f"child_frame_id {frame!r} on {odom_topic(topic_robot)}" if outcome == 'unknown_id'
+                      else f'robot {topic_robot} at {stamp * 1e-9:.3f} s (clock {now * 1e-9:.3f} s)')
+            self._note_drop(outcome, detail)
+        if self.mode == 'lockstep':
+            self._lockstep_poll()
+        if not self._announced_ready and self.logic.ready:
+            self._announced_ready = True
+            self.get_logger().info(f'heard all {len(self.logic.ids)} robots: ready')
+            self._publish_status()
+
+    def _lockstep_poll(self) -> None:
+        cmd = self.logic.lockstep_poll(time.monotonic())
+        if cmd is not None:
+            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+        self._log_events()
+
+    def _on_lockstep_timer(self) -> None:
+        self._lockstep_poll()
+        self._flush_drops()
+
+    def _on_tick(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        cmd = self.logic.tick(now)
+        if cmd is None:
+            self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
+        else:
+            if cmd.stop:
+                own = self.logic.newest_ns.get(self.logic.me, 0)
+                self._throttled('stale', f'own state is stale ({(now - own) * 1e-9:.3f} s old, timeout '
+                                f'{self.logic.config.state_timeout:g} s): publishing a zero command (stop)',
+                                warn=True)
+            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+        self._log_events()
+        self._flush_drops()
+
+    # --- logging -------------------------------------------------------------------
+    def _throttled(self, key: str, text: str, warn: bool = False) -> None:
+        now = time.monotonic()
+        if now - self._last_log.get(key, -1e9) >= _LOG_EVERY_S:
+            self._last_log[key] = now
+            (self.get_logger().warning if warn else self.get_logger().info)(text)
+
+    def _note_drop(self, reason: str, detail: str) -> None:
+        entry = self._drops[reason]
+        entry[0] += 1
+        entry[2] = detail
+        if time.monotonic() - entry[1] >= _LOG_EVERY_S:
+            self._flush_drop(reason)
+
+    def _flush_drops(self) -> None:
+        for reason, entry in self._drops.items():
+            if entry[0] and time.monotonic() - entry[1] >= _LOG_EVERY_S:
+                self._flush_drop(reason)
+
+    def _flush_drop(self, reason: str) -> None:
+        entry = self._drops[reason]
+        self.get_logger().warning(f'dropped {entry[0]} state(s) {_EXPLAIN[reason]} ({reason}; latest: {entry[2]}; '
+                                  f'{self.logic.counters[reason]} in all)')
+        entry[0], entry[1] = 0, time.monotonic()
+
+    def _log_events(self) -> None:
+        for text in self.logic.drain_events():
+            self.get_logger().warning(text)
+
+    def _publish_status(self) -> None:
+        self.status_pub.publish(String(data=status_json(**self.logic.status())))
+
+    def write_report(self) -> None:
+        """Write the counters to the ``report`` file (if set)."""
+        if not getattr(self, 'report_path', ''):
+            return
+        tmp = f'{self.report_path}.tmp{os.getpid()}'
+        with open(tmp, 'w') as fh:
+            json.dump(self.logic.status(), fh)
+        os.replace(tmp, self.report_path)
+
+
+def main(args=None):
+    """Entry point of the ``agent`` executable."""
+    rclpy.init(args=args)
+    node = None
+    code = EXIT_OK
+    try:
+        node = AgentNode(node_name_from_args(args if args is not None else sys.argv, 'agent'))
+        executor = make_executor()
+        executor.add_node(node)
+        spin_until(executor)
+    except ConfigError as exc:
+        print(f'knode_swarm_ros agent: error: {exc}', file=sys.stderr)
+        code = EXIT_CONFIG
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # report, then exit non-zero instead of a bare traceback
+        import traceback
+        traceback.print_exc()
+        print(f'knode_swarm_ros agent: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        code = EXIT_FAILURE
+    finally:
+        if node is not None:
+            try:
+                node.write_report()
+            except OSError as exc:
+                print(f'knode_swarm_ros agent: cannot write the report: {exc}', file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()

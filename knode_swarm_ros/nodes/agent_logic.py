@@ -1,0 +1,363 @@
+"""What one robot's controller does, without ROS: the agent node only wires it to topics.
+
+:class:`AgentLogic` files every state it hears in the core's :class:`DelayBuffer`, drops and
+counts what a real network delivers badly, and turns what it heard into one command with the
+core's neighbour-matrix builder and the policy file's controller:
+
+* ``receive(robot, stamp_ns, z, now_ns, wall)`` files a state or says why it was dropped:
+  ``malformed`` (undecodable bytes: :meth:`malformed`), ``unknown_id`` (not one of the
+  swarm's robots), ``bad_size``, ``non_finite``, ``too_old`` (older than ``state_timeout``
+  on the node's clock), ``too_future`` (more than ``future_tolerance`` ahead of it),
+  ``duplicate`` (a step already filed: the first copy wins).
+* ``lockstep``: the arrival of the robot's own state for a new step s opens a command; it is
+  computed (``lockstep_poll``) once every live peer's state of step ``max(s - tau, s0)`` is
+  filed (s0: the robot's first step), so a command is never built on stale neighbours, whatever
+  order the messages arrive in. A peer still missing ``state_timeout`` wall seconds after the
+  own state arrived is left out and counted as gone until it is heard again. A repeated own
+  state of the step already answered re-sends the same command (the simulator's retransmission
+  after a lost message).
+* ``realtime``: ``tick(now_ns)`` (the control timer) uses the newest own state and, for every
+  peer heard within ``state_timeout``, its newest state at or before ``own step - tau``; an own
+  state older than ``state_timeout`` gives a zero command (stop), stamped ``now``.
+
+Y_i comes from :func:`knode_swarm_ros.core.neighbour_matrix_single` with the rows ordered by
+robot id (ties go to the lower id, as in the offline rollout). With ``parity_batch`` the policy
+is evaluated in a batch shaped like the offline rollout's (one row per robot, this robot's
+matrix at its own index): float32 matrix products round differently for different batch
+shapes, and this makes a lockstep run equal :func:`knode_swarm_ros.core.rollout` bit for bit
+(lockstep only: in real time there is no rollout to match, and a batch of 1 is cheaper).
+Commands are saturated per axis at the command limit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
+
+import numpy as np
+
+from ..core.delay_buffer import DelayBuffer
+from ..core.network import neighbour_matrix_single
+from ..core.scenarios import get_scenario
+from .common import MODES, ConfigError
+
+__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'PolicyLike', 'DROP_REASONS']
+
+#: Reasons ``receive`` drops a state for (each has a counter).
+DROP_REASONS = ('malformed', 'unknown_id', 'bad_size', 'non_finite', 'too_old', 'too_future')
+
+
+class PolicyLike(Protocol):
+    """What the logic needs of a policy (:class:`knode_swarm_ros.core.LoadedPolicy` has it)."""
+
+    k: int
+    d_cr: float
+    tau: int
+    dt: float
+    scenario: str
+    command_limit: Optional[float]
+
+    def __call__(self, Y: np.ndarray, mask: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class AgentConfig:
+    """The agent's settings (parameters of the same names; see docs/ros.md)."""
+
+    robot_id: int
+    robot_ids: Sequence[int]
+    mode: str = 'realtime'
+    state_timeout: float = 0.5
+    future_tolerance: float = 0.5
+    command_limit: float = 0.0
+    parity_batch: bool = True
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first bad parameter."""
+        ids = list(self.robot_ids)
+        if len(set(ids)) != len(ids) or not ids:
+            raise ConfigError(f"parameter 'robot_ids' must be distinct ids, got {ids}")
+        if self.robot_id not in ids:
+            raise ConfigError(f"parameter 'id' = {self.robot_id} is not one of the swarm's robot ids "
+                              f"{_short(ids)} (set 'robots' or 'robot_ids')")
+        if self.mode not in MODES:
+            raise ConfigError(f"parameter 'mode' = {self.mode!r} is not one of {', '.join(MODES)}")
+        if not (np.isfinite(self.state_timeout) and self.state_timeout > 0):
+            raise ConfigError(f"parameter 'state_timeout' must be > 0 seconds, got {self.state_timeout}")
+        if not (np.isfinite(self.future_tolerance) and self.future_tolerance >= 0):
+            raise ConfigError(f"parameter 'future_tolerance' must be >= 0 seconds, got {self.future_tolerance}")
+        if not (np.isfinite(self.command_limit) and self.command_limit >= 0):
+            raise ConfigError(f"parameter 'command_limit' must be >= 0 (0: the policy's), got {self.command_limit}")
+
+
+def _short(ids: Sequence[int]) -> str:
+    ids = list(ids)
+    if len(ids) > 1 and ids == list(range(ids[0], ids[-1] + 1)):
+        return f'{ids[0]}..{ids[-1]}'
+    return str(ids)
+
+
+@dataclass
+class Command:
+    """A command to publish: ``value [m]`` stamped ``stamp_ns``.
+
+    ``step`` is the own state's step (None for a stop command), ``neighbours`` the number of
+    real neighbour rows in Y, ``stop`` marks a zero command for a stale own state and
+    ``resend`` a repeated lockstep command.
+    """
+
+    stamp_ns: int
+    step: Optional[int]
+    value: np.ndarray
+    stop: bool = False
+    resend: bool = False
+    neighbours: int = 0
+
+
+@dataclass
+class _Lockstep:
+    first_step: Optional[int] = None
+    pending: Optional[int] = None
+    pending_since: float = 0.0
+    answered: Optional[int] = None
+    resend: bool = False
+    gone: set = field(default_factory=set)
+
+
+class AgentLogic:
+    """Buffering, staleness, Y_i and the command of robot ``config.robot_id`` (see module doc)."""
+
+    def __init__(self, config: AgentConfig, policy: PolicyLike):
+        config.validate()
+        self.config = config
+        self.policy = policy
+        self.spec = get_scenario(policy.scenario)
+        self.me = int(config.robot_id)
+        self.ids: List[int] = sorted(int(i) for i in config.robot_ids)
+        self.index = {rid: n for n, rid in enumerate(self.ids)}
+        self.dt = float(policy.dt)
+        self.tau = int(policy.tau)
+        self.k = int(policy.k)
+        self.d_cr = float(policy.d_cr)
+        limits = [x for x in (config.command_limit or None, policy.command_limit) if x]
+        self.limit: Optional[float] = min(limits) if limits else None
+        self.timeout_ns = int(round(config.state_timeout * 1e9))
+        self.future_ns = int(round(config.future_tolerance * 1e9))
+        self.buffer = DelayBuffer(self.dt, self.tau, horizon=max(64, 4 * self.tau + 8))
+        self.newest_ns: Dict[int, int] = {}     # newest stamp heard per robot
+        self.stamps: Dict[Tuple[int, int], int] = {}  # (robot, step) -> exact stamp (own robot only)
+        self.counters: Dict[str, int] = {name: 0 for name in (
+            'received', 'accepted', 'duplicate', *DROP_REASONS, 'commands', 'stop_commands',
+            'resent', 'gave_up', 'non_finite_command', 'clipped')}
+        self.last_command: Optional[Command] = None
+        self.last_drop: Optional[Tuple[str, int, int]] = None  # (reason, robot, stamp_ns)
+        self.events: List[str] = []  # human-readable notes for the node to log, drained by it
+        self._lock = _Lockstep()
+
+    # --- input ---------------------------------------------------------------------
+    def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
+                wall: float = 0.0) -> str:
+        """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
+        ``duplicate`` or the drop reason (see :data:`DROP_REASONS`).
+
+        ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
+        ``wall`` a monotonic time in seconds (lockstep waiting).
+        """
+        c = self.counters
+        c['received'] += 1
+        reason = self._check(robot, stamp_ns, z, now_ns)
+        if reason is not None:
+            c[reason] += 1
+            self.last_drop = (reason, -1 if robot is None else int(robot), int(stamp_ns))
+            return reason
+        robot = int(robot)
+        z = np.asarray(z, dtype=np.float64)
+        step = self.buffer.step_of(stamp_ns * 1e-9)
+        if not self.buffer.add(robot, stamp_ns * 1e-9, z):
+            c['duplicate'] += 1
+            lock = self._lock
+            if robot == self.me and lock.answered == step and self.last_command is not None:
+                lock.resend = True
+            return 'duplicate'
+        c['accepted'] += 1
+        if stamp_ns > self.newest_ns.get(robot, -1):
+            self.newest_ns[robot] = int(stamp_ns)
+        if robot == self.me:
+            self.stamps[(robot, step)] = int(stamp_ns)
+            self._forget_stamps(step)
+            self._own_state(step, wall)
+        elif robot in self._lock.gone and step >= self._current_step() - self.tau:
+            self._lock.gone.discard(robot)
+            self.events.append(f'robot {robot} is heard again (step {step}): waiting for it again')
+        return 'accepted'
+
+    def malformed(self) -> str:
+        """Count a message that could not be decoded at all; returns ``malformed``."""
+        self.counters['received'] += 1
+        self.counters['malformed'] += 1
+        self.last_drop = ('malformed', -1, -1)
+        return 'malformed'
+
+    def _current_step(self) -> int:
+        lock = self._lock
+        current = lock.pending if lock.pending is not None else lock.answered
+        return -1 if current is None else current
+
+    def _check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
+        if robot is None or int(robot) not in self.index:
+            return 'unknown_id'
+        z = np.asarray(z)
+        if z.shape != (self.spec.state_dim,):
+            return 'bad_size'
+        if not np.all(np.isfinite(z)):
+            return 'non_finite'
+        if now_ns is not None and now_ns > 0:
+            if stamp_ns < now_ns - self.timeout_ns:
+                return 'too_old'
+            if stamp_ns > now_ns + self.future_ns:
+                return 'too_future'
+        return None
+
+    def _forget_stamps(self, step: int) -> None:
+        if len(self.stamps) > 4 * self.buffer.horizon:
+            cut = step - self.buffer.horizon
+            for key in [key for key in self.stamps if key[1] < cut]:
+                del self.stamps[key]
+
+    def _own_state(self, step: int, wall: float) -> None:
+        lock = self._lock
+        if lock.first_step is None or step < lock.first_step:
+            lock.first_step = step
+        newest = lock.pending if lock.pending is not None else lock.answered
+        if newest is None or step > newest:  # a new step (a late, older one is only filed)
+            lock.pending = step
+            lock.pending_since = wall
+
+    # --- readiness -----------------------------------------------------------------
+    def heard(self) -> List[int]:
+        """Robots heard from at least once (ids, ascending)."""
+        return [rid for rid in self.ids if rid in self.newest_ns]
+
+    def missing(self) -> List[int]:
+        """Robots never heard from."""
+        return [rid for rid in self.ids if rid not in self.newest_ns]
+
+    @property
+    def ready(self) -> bool:
+        """Every robot of the swarm (this one included) heard at least once."""
+        return len(self.newest_ns) == len(self.ids)
+
+    # --- lockstep ------------------------------------------------------------------
+    def lockstep_poll(self, wall: float) -> Optional[Command]:
+        """The command for the pending own step once every live peer's needed state is here
+        (or a re-send of the last one); None while waiting. Call after every ``receive`` and
+        now and then (a timer) so that silent peers time out."""
+        lock = self._lock
+        if lock.resend:
+            lock.resend = False
+            self.counters['resent'] += 1
+            last = self.last_command
+            return Command(last.stamp_ns, last.step, last.value.copy(), resend=True,
+                           neighbours=last.neighbours)
+        if lock.pending is None:
+            return None
+        s = lock.pending
+        need = max(s - self.tau, lock.first_step)
+        rows: Dict[int, np.ndarray] = {}
+        missing = []
+        for rid in self.ids:
+            z = self.buffer.get(rid, need)
+            if z is not None:
+                rows[rid] = z
+            elif rid == self.me:
+                z = self.buffer.at(rid, need)  # own delayed state lost: the closest one before
+                if z is not None:
+                    rows[rid] = z
+            elif rid not in lock.gone:
+                missing.append(rid)
+        if missing:
+            if wall - lock.pending_since < self.config.state_timeout:
+                return None
+            for rid in missing:
+                lock.gone.add(rid)
+                self.counters['gave_up'] += 1
+            self.events.append(f'step {s}: no state of step {need} from robot(s) {missing} within '
+                               f'{self.config.state_timeout:g} s: left out until heard again')
+        own = self.buffer.get(self.me, s)
+        command = self._compute(s, self.stamps.get((self.me, s), int(round(s * self.dt * 1e9))), own, rows)
+        lock.answered = s
+        lock.pending = None
+        return command
+
+    # --- realtime ------------------------------------------------------------------
+    def tick(self, now_ns: Optional[int]) -> Optional[Command]:
+        """The command of a control tick at ``now_ns`` (None before the own state is heard)."""
+        latest = self.buffer.latest(self.me)
+        if latest is None:
+            return None
+        s, own = latest
+        own_ns = self.newest_ns[self.me]
+        clock_known = now_ns is not None and now_ns > 0
+        if clock_known and now_ns - own_ns > self.timeout_ns:
+            self.counters['stop_commands'] += 1
+            cmd = Command(int(now_ns), None, np.zeros(self.spec.command_dim), stop=True)
+            self.last_command = cmd
+            return cmd
+        rows: Dict[int, np.ndarray] = {}
+        for rid in self.ids:
+            newest = self.newest_ns.get(rid)
+            if newest is None:
+                continue
+            if rid != self.me and clock_known and now_ns - newest > self.timeout_ns:
+                continue  # silent longer than the timeout: not a neighbour
+            z = self.buffer.delayed(rid, s)
+            if z is not None:
+                rows[rid] = z
+        return self._compute(s, own_ns, own, rows)
+
+    # --- the command ---------------------------------------------------------------
+    def neighbour_matrix(self, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Tuple[np.ndarray, np.ndarray]:
+        """Y ``[k, d]`` and mask ``[k]`` from the own state ``own [d]`` and each robot's delayed
+        state ``rows {id: [d]}`` (this robot's included: it centres the radius), rows in id order."""
+        ids = sorted(rows)
+        z_delayed = np.stack([rows[rid] for rid in ids])
+        return neighbour_matrix_single(ids.index(self.me), own, z_delayed, self.spec.position_dim,
+                                       self.d_cr, self.k)
+
+    def evaluate(self, Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The policy's command ``[m]`` for one ``Y [k, d]``, ``mask [k]`` (before the agent's clip)."""
+        if self.config.parity_batch and self.config.mode == 'lockstep' and len(self.ids) > 1:
+            B, row = len(self.ids), self.index[self.me]
+            out = self.policy(np.repeat(Y[None], B, axis=0), np.repeat(mask[None], B, axis=0))
+            return np.asarray(out[row], dtype=np.float64)
+        return np.asarray(self.policy(Y[None], mask[None])[0], dtype=np.float64)
+
+    def _compute(self, step: int, stamp: int, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Command:
+        Y, mask = self.neighbour_matrix(own, rows)
+        u = self.evaluate(Y, mask)
+        if not np.all(np.isfinite(u)):
+            self.counters['non_finite_command'] += 1
+            self.events.append(f'step {step}: the policy returned {u.tolist()}: publishing zero')
+            u = np.zeros(self.spec.command_dim)
+        if self.limit is not None:
+            clipped = np.clip(u, -self.limit, self.limit)
+            if np.any(clipped != u):
+                self.counters['clipped'] += 1
+            u = clipped
+        self.counters['commands'] += 1
+        cmd = Command(int(stamp), int(step), u, neighbours=int(mask.sum()) - 1)
+        self.last_command = cmd
+        return cmd
+
+    # --- reporting -----------------------------------------------------------------
+    def drain_events(self) -> List[str]:
+        """Notes since the last call (the node logs them)."""
+        events, self.events = self.events, []
+        return events
+
+    def status(self) -> Dict[str, Any]:
+        """JSON-able summary: readiness, counters, lockstep bookkeeping."""
+        lock = self._lock
+        return {'id': self.me, 'ready': self.ready, 'heard': len(self.heard()), 'robots': len(self.ids),
+                'missing': self.missing()[:20], 'mode': self.config.mode,
+                'answered': lock.answered, 'pending': lock.pending, 'gone': sorted(lock.gone),
+                'counters': dict(self.counters)}

@@ -1,0 +1,284 @@
+"""The one place that maps states and commands to and from ROS messages.
+
+State z of robot ``i`` <-> ``nav_msgs/Odometry`` on ``robot_<i>/odom`` (all values float64,
+world frame; ``header.frame_id = 'world'``, ``child_frame_id = 'robot_<i>'``,
+``header.stamp`` = the state's time):
+
+=========  ==========================================  =============================================
+scenario   state entry                                 Odometry field
+=========  ==========================================  =============================================
+flock2d    px, py                                      pose.pose.position.x, .y (z = 0)
+flock2d    vx, vy                                      twist.twist.linear.x, .y (z = 0)
+flock2d    (not part of z)                             pose.pose.orientation = yaw of the velocity
+                                                       (identity when v = 0), for RViz only
+boids3d    px, py, pz                                  pose.pose.position.x, .y, .z
+boids3d    hx, hy, hz (unit heading)                   pose.pose.orientation = the unit quaternion
+                                                       that rotates +x onto h (see below)
+boids3d    (not part of z)                             twist.twist.linear = the velocity applied
+                                                       over the last step, informative only
+=========  ==========================================  =============================================
+
+Note that REP 105 puts an Odometry twist in the child frame; here (DESIGN.md) the twist is
+in the world frame, like the state.
+
+Heading quaternion (x, y, z, w): for a unit h with h_x >= 0, q = normalise(w = 1 + h_x,
+(x, y, z) = (+x) x h = (0, -h_z, h_y)), the shortest rotation taking +x to h; for h_x < 0,
+where that formula cancels, q = (0, 0, 1, 0) * q' (the rotation by pi about +z after the
+shortest arc q' onto (-h_x, -h_y, h_z)), again a rotation taking +x to h. Decoding takes the
+first column of the rotation matrix of q, h = (1 - 2(y^2 + z^2), 2(xy + wz), 2(xz - wy)), so
+encode-then-decode returns h up to rounding (a few 1e-16) for every unit h; a zero h encodes
+as the identity and decodes as +x.
+
+Fast path: the simulator publishes, and the agents and the recorder receive, Odometry as
+serialized CDR bytes (:func:`odom_to_cdr`, :func:`odom_from_cdr`; rclpy's ``publish(bytes)``
+and ``raw=True`` subscriptions). The bytes are exactly what rclpy serializes for the message
+of :func:`state_to_odom` (covariances zero; rclpy deserializes them to an equal message, and
+only the alignment padding, which rclpy leaves uninitialised, is zero here), and the decoder reads the same fields that
+:func:`odom_to_state` reads, so the mapping above is the only one; it only saves rclpy's
+conversion of every Odometry (with its two 36-entry covariances) to and from a Python object,
+which measured about 3x the CPU of the rest of a message's delivery.
+
+Commands: flock2d accelerations in ``geometry_msgs/AccelStamped.accel.linear.x, .y``
+(``robot_<i>/cmd_accel``), boids3d velocities in ``geometry_msgs/TwistStamped.twist.linear.x,
+.y, .z`` (``robot_<i>/cmd_vel``); ``header.stamp`` = the stamp of the robot's own state the
+command was computed from, ``header.frame_id = 'world'``.
+"""
+from __future__ import annotations
+
+import math
+import struct
+from typing import Optional, Tuple, Union
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import AccelStamped, TwistStamped
+from nav_msgs.msg import Odometry
+
+from ..core.scenarios import Scenario, get_scenario
+from .common import WORLD_FRAME, robot_frame
+
+__all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
+           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr',
+           'CdrError', 'command_msg_type', 'command_to_msg', 'msg_to_command']
+
+ScenarioLike = Union[str, Scenario]
+
+
+def _spec(scenario: ScenarioLike) -> Scenario:
+    return scenario if isinstance(scenario, Scenario) else get_scenario(scenario)
+
+
+def time_msg(ns: int) -> Time:
+    """``builtin_interfaces/Time`` of a non-negative stamp in integer nanoseconds."""
+    ns = int(ns)
+    if ns < 0:
+        raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def time_ns(stamp: Time) -> int:
+    """Integer nanoseconds of a ``builtin_interfaces/Time``."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _shortest_arc(hx: float, hy: float, hz: float) -> Tuple[float, float, float, float]:
+    # q = normalise(1 + hx, (+x) x h); well conditioned for hx >= 0 (|q| >= 1 before normalising).
+    w, x, y, z = 1.0 + hx, 0.0, -hz, hy
+    q = math.sqrt(w * w + x * x + y * y + z * z)
+    return x / q, y / q, z / q, w / q
+
+
+def heading_to_quaternion(h) -> Tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation taking +x onto ``h`` (normalised first).
+
+    For h_x >= 0 the shortest arc; for h_x < 0, where the shortest-arc formula loses
+    precision, the rotation by pi about +z after the shortest arc onto (-h_x, -h_y, h_z).
+    A zero ``h`` gives the identity.
+    """
+    h = np.asarray(h, dtype=np.float64)
+    norm = float(np.linalg.norm(h))
+    if not norm > 0.0:
+        return 0.0, 0.0, 0.0, 1.0
+    hx, hy, hz = (h / norm).tolist()
+    if hx >= 0.0:
+        return _shortest_arc(hx, hy, hz)
+    # q = (0, 0, 1, 0) (pi about z) times q' (x', y', z', w') = (-y', x', w', -z')
+    x1, y1, z1, w1 = _shortest_arc(-hx, -hy, hz)
+    return -y1, x1, w1, -z1
+
+
+def quaternion_to_heading(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """The image of +x under the rotation (x, y, z, w) (normalised first) -> ``[3]``."""
+    q = math.sqrt(x * x + y * y + z * z + w * w)
+    if not q > 0.0:
+        return np.array([1.0, 0.0, 0.0])
+    x, y, z, w = x / q, y / q, z / q, w / q
+    return np.array([1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)])
+
+
+def yaw_quaternion(vx: float, vy: float) -> Tuple[float, float, float, float]:
+    """(x, y, z, w) of the rotation about +z by atan2(vy, vx); identity for a zero vector."""
+    if vx == 0.0 and vy == 0.0:
+        return 0.0, 0.0, 0.0, 1.0
+    half = 0.5 * math.atan2(vy, vx)
+    return 0.0, 0.0, math.sin(half), math.cos(half)
+
+
+def state_to_odom(robot: int, ns: int, z, scenario: ScenarioLike,
+                  velocity: Optional[np.ndarray] = None) -> Odometry:
+    """Odometry of robot ``robot``'s state ``z [d]`` at stamp ``ns`` (see the module table).
+
+    ``velocity`` (boids3d only, optional) fills twist.linear, for information.
+    """
+    spec = _spec(scenario)
+    z = np.asarray(z, dtype=np.float64)
+    msg = Odometry()
+    msg.header.stamp = time_msg(ns)
+    msg.header.frame_id = WORLD_FRAME
+    msg.child_frame_id = robot_frame(robot)
+    pos = msg.pose.pose.position
+    o = msg.pose.pose.orientation
+    lin = msg.twist.twist.linear
+    if spec.command == 'acceleration':  # flock2d: [px, py, vx, vy]
+        pos.x, pos.y = float(z[0]), float(z[1])
+        lin.x, lin.y = float(z[2]), float(z[3])
+        o.x, o.y, o.z, o.w = yaw_quaternion(float(z[2]), float(z[3]))
+    else:  # boids3d: [px, py, pz, hx, hy, hz]
+        pos.x, pos.y, pos.z = float(z[0]), float(z[1]), float(z[2])
+        o.x, o.y, o.z, o.w = heading_to_quaternion(z[3:6])
+        if velocity is not None:
+            lin.x, lin.y, lin.z = (float(v) for v in velocity)
+    return msg
+
+
+def _state_from(spec: Scenario, position, quaternion, linear) -> np.ndarray:
+    """The state z from the Odometry fields: position (x, y, z), orientation (x, y, z, w) and
+    twist.linear (x, y, z) -- the decoding half of the module table."""
+    if spec.command == 'acceleration':
+        return np.array([position[0], position[1], linear[0], linear[1]], dtype=np.float64)
+    h = quaternion_to_heading(*quaternion)
+    return np.array([position[0], position[1], position[2], h[0], h[1], h[2]], dtype=np.float64)
+
+
+def odom_to_state(msg: Odometry, scenario: ScenarioLike) -> np.ndarray:
+    """State ``z [d]`` float64 of an Odometry message (no validation: callers check finiteness)."""
+    p = msg.pose.pose.position
+    o = msg.pose.pose.orientation
+    v = msg.twist.twist.linear
+    return _state_from(_spec(scenario), (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z))
+
+
+# --- serialized Odometry (CDR, as rmw_fastrtps puts it on the wire) ---------------------------
+class CdrError(ValueError):
+    """Bytes that are not a serialized nav_msgs/Odometry."""
+
+
+_CDR_LE = b'\x00\x01\x00\x00'           # encapsulation: plain CDR, little endian
+_ZEROS_36 = bytes(8 * 36)                 # a zero covariance
+
+
+def _pad(buf: bytearray, to: int) -> None:
+    buf.extend(bytes((-(len(buf) - 4)) % to))
+
+
+def _put_string(buf: bytearray, text: str) -> None:
+    raw = text.encode('utf-8') + b'\x00'
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(raw)))
+    buf.extend(raw)
+
+
+def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Optional[np.ndarray] = None) -> bytes:
+    """The serialized form of ``state_to_odom(robot, ns, z, scenario, velocity)``, built directly."""
+    spec = _spec(scenario)
+    z = np.asarray(z, dtype=np.float64)
+    if ns < 0:
+        raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
+    if spec.command == 'acceleration':
+        position = (float(z[0]), float(z[1]), 0.0)
+        quaternion = yaw_quaternion(float(z[2]), float(z[3]))
+        linear = (float(z[2]), float(z[3]), 0.0)
+    else:
+        position = (float(z[0]), float(z[1]), float(z[2]))
+        quaternion = heading_to_quaternion(z[3:6])
+        linear = (0.0, 0.0, 0.0) if velocity is None else tuple(float(v) for v in velocity)
+    buf = bytearray(_CDR_LE)
+    buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
+    _put_string(buf, WORLD_FRAME)
+    _put_string(buf, robot_frame(robot))
+    _pad(buf, 8)
+    buf.extend(struct.pack('<7d', *position, *quaternion))
+    buf.extend(_ZEROS_36)
+    buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
+    buf.extend(_ZEROS_36)
+    return bytes(buf)
+
+
+def odom_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, str, np.ndarray]:
+    """(stamp ns, child_frame_id, state ``z [d]``) of a serialized Odometry.
+
+    Reads plain CDR (XCDR1) in either byte order, as rmw_fastrtps writes it.
+
+    Raises:
+        CdrError: not a serialized Odometry (unknown encapsulation, truncated, bad strings).
+    """
+    try:
+        if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+            raise CdrError(f'unknown CDR encapsulation {bytes(data[:4]).hex()}')
+        e = '<' if data[1] == 1 else '>'
+        pos = 4
+        sec, nanosec = struct.unpack_from(e + 'iI', data, pos)
+        pos += 8
+        frames = []
+        for _ in range(2):
+            pos += (-(pos - 4)) % 4
+            (length,) = struct.unpack_from(e + 'I', data, pos)
+            pos += 4
+            if length < 1 or pos + length > len(data) or data[pos + length - 1] != 0:
+                raise CdrError('bad string in the header')
+            frames.append(bytes(data[pos:pos + length - 1]).decode('utf-8', errors='replace'))
+            pos += length
+        pos += (-(pos - 4)) % 8
+        pose = struct.unpack_from(e + '7d', data, pos)
+        pos += 56 + 8 * 36
+        linear = struct.unpack_from(e + '3d', data, pos)
+        if pos + 48 + 8 * 36 != len(data):
+            raise CdrError(f'{len(data)} bytes, expected {pos + 48 + 8 * 36}')
+    except struct.error as exc:
+        raise CdrError(f'truncated Odometry ({len(data)} bytes): {exc}') from None
+    ns = int(sec) * 1_000_000_000 + int(nanosec)
+    return ns, frames[1], _state_from(_spec(scenario), pose[:3], pose[3:7], linear)
+
+
+def command_msg_type(scenario: ScenarioLike):
+    """AccelStamped (acceleration commands) or TwistStamped (velocity commands)."""
+    return AccelStamped if _spec(scenario).command == 'acceleration' else TwistStamped
+
+
+def command_to_msg(ns: int, u, scenario: ScenarioLike):
+    """Command message for ``u [m]`` echoing the state stamp ``ns``."""
+    spec = _spec(scenario)
+    u = np.asarray(u, dtype=np.float64)
+    if spec.command == 'acceleration':
+        msg = AccelStamped()
+        vec = msg.accel.linear
+        vec.x, vec.y = float(u[0]), float(u[1])
+    else:
+        msg = TwistStamped()
+        vec = msg.twist.linear
+        vec.x, vec.y, vec.z = float(u[0]), float(u[1]), float(u[2])
+    msg.header.stamp = time_msg(ns)
+    msg.header.frame_id = WORLD_FRAME
+    return msg
+
+
+def msg_to_command(msg, scenario: ScenarioLike) -> Tuple[int, np.ndarray]:
+    """(stamp ns, ``u [m]`` float64) of a command message."""
+    spec = _spec(scenario)
+    if spec.command == 'acceleration':
+        vec = msg.accel.linear
+        u = np.array([vec.x, vec.y], dtype=np.float64)
+    else:
+        vec = msg.twist.linear
+        u = np.array([vec.x, vec.y, vec.z], dtype=np.float64)
+    return time_ns(msg.header.stamp), u

@@ -1,0 +1,236 @@
+"""The ``recorder`` executable: every robot's odometry into a trajectory file.
+
+Subscribes to ``robot_<i>/odom`` for robots 0 .. n-1 and to ``simulator/status``; publishes
+``recorder/status`` (JSON: ready once every robot was heard, ``saved`` at the end),
+``recorder/progress`` (std_msgs/Int64, the newest step up to which every frame is complete:
+the simulator's lockstep flow control) and live ``recorder/avd`` / ``recorder/amd``
+(std_msgs/Float64). It writes ``output`` (the DESIGN.md trajectory format, one trajectory,
+atomically) when the simulator reports ``done`` and every frame up to the final one is here
+(or ``grace_period`` later, filling gaps), and also when stopped with Ctrl-C or SIGTERM.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from functools import partial
+
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.task import Future
+from std_msgs.msg import Float64, Int64, String
+
+from ..core.scenarios import get_scenario
+from . import qos
+from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, RECORDER_PROGRESS_TOPIC,
+                     RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError, odom_topic, parse_status,
+                     robot_frame, status_json, step_of)
+from .conversions import CdrError, odom_from_cdr
+from .executor import make_executor, spin_until
+from .params import declare
+from .recorder_logic import FrameCollector, swarm_metrics
+
+__all__ = ['RecorderNode', 'main']
+
+
+class RecorderNode(Node):
+    """Thin ROS wrapper around :class:`FrameCollector` (see the module doc and docs/ros.md)."""
+
+    def __init__(self, node_name: str = 'recorder', **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.scenario = declare(self, 'scenario', 'flock2d', 'flock2d or boids3d', choices=('flock2d', 'boids3d'))
+        robots = declare(self, 'robots', 10, 'number of robots, ids 0 .. robots-1', int_range=(1, 10_000))
+        self.output = declare(self, 'output', '', 'trajectory file to write (.npz), required')
+        spec = get_scenario(self.scenario)
+        self.dt = declare(self, 'dt', 0.0, f"seconds per simulation step (0: the scenario's, {spec.dt:g})",
+                          float_range=(0.0, 3600.0)) or spec.dt
+        self.frame_every = declare(self, 'frame_every', 0, 'steps between recorded frames (0: as the simulator '
+                                   'publishes, else inferred)', int_range=(0, 1_000_000))
+        self.stop_on_done = declare(self, 'stop_on_done', True, 'save and exit when the simulator is done')
+        self.grace_period = declare(self, 'grace_period', 3.0, 'wall seconds to wait for missing frames after '
+                                    'the simulator is done', float_range=(0.0, 3600.0))
+        metrics_rate = declare(self, 'metrics_rate', 5.0, 'avd/amd messages per wall second (0: none)',
+                               float_range=(0.0, 1000.0))
+        if not self.output:
+            raise ConfigError("parameter 'output' is required: pass -p output:=/path/to/run.npz")
+        if not self.output.endswith('.npz'):
+            raise ConfigError(f"parameter 'output' = {self.output!r} must end with .npz")
+
+        self.frames = FrameCollector(self.scenario, robots)
+        if self.frame_every:
+            self.frames.set_every(self.frame_every)
+        self.source = {}
+        self.phase = 'recording'
+        self.final_step = None
+        self._done_wall = None
+        self.saved_path = None
+        self.finished = Future()
+        self.exit_code = EXIT_OK
+        self._metrics_period = 1.0 / metrics_rate if metrics_rate > 0 else None
+        self._last_metrics = -1e9
+        self._announced = False
+        self._dt_warned = False
+        self._published_progress = -1
+
+        wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self.status_pub = self.create_publisher(String, RECORDER_STATUS_TOPIC, qos.STATUS)
+        self.progress_pub = self.create_publisher(Int64, RECORDER_PROGRESS_TOPIC, qos.PROGRESS)
+        self.avd_pub = self.create_publisher(Float64, AVD_TOPIC, qos.METRICS)
+        self.amd_pub = self.create_publisher(Float64, AMD_TOPIC, qos.METRICS)
+        self.subs = [self.create_subscription(Odometry, odom_topic(r), partial(self._on_odom, r), qos.ODOM, raw=True)
+                     for r in range(robots)]  # serialized bytes: see conversions.odom_from_cdr
+        self.create_subscription(String, SIMULATOR_STATUS_TOPIC, self._on_sim_status, qos.STATUS)
+        self.create_timer(0.5, self._on_timer, clock=wall)
+        self.get_logger().info(f'recording {robots} robots ({self.scenario}) to {self.output}')
+        self._publish_status()
+
+    # --- callbacks -----------------------------------------------------------------
+    def _on_odom(self, robot: int, data: bytes) -> None:
+        try:
+            stamp, frame, z = odom_from_cdr(data, self.scenario)
+        except CdrError:
+            self.frames.counters['malformed'] += 1
+            return
+        if frame not in ('', robot_frame(robot)):
+            self.frames.counters['unknown_id'] += 1
+            return
+        if self.frames.add(robot, step_of(stamp, self.dt), z) != 'accepted':
+            return
+        if self.frames.progress > self._published_progress:
+            self._published_progress = self.frames.progress
+            self.progress_pub.publish(Int64(data=self.frames.progress))
+            self._metrics(self.frames.progress)
+        if not self._announced and self.frames.ready:
+            self._announced = True
+            self.get_logger().info(f'heard all {self.frames.n} robots: ready')
+            self._publish_status()
+        if self.phase == 'finishing':
+            self._maybe_save()
+
+    def _metrics(self, step: int) -> None:
+        if self._metrics_period is None or time.monotonic() - self._last_metrics < self._metrics_period:
+            return
+        self._last_metrics = time.monotonic()
+        a, m = swarm_metrics(self.frames.frames[step], self.scenario)
+        self.avd_pub.publish(Float64(data=a))
+        self.amd_pub.publish(Float64(data=m))
+
+    def _on_sim_status(self, msg: String) -> None:
+        status = parse_status(msg.data)
+        if status is None:
+            return
+        self.source = {k: v for k, v in status.items() if k not in ('phase', 'step', 'lost', 'agents_ready',
+                                                                     'final_step')}
+        every = int(status.get('publish_every') or 0)
+        if every and not self.frame_every:
+            self.frames.set_every(every)
+        dt = status.get('dt')
+        if dt and abs(float(dt) - self.dt) > 1e-12 and not self._dt_warned:
+            self._dt_warned = True
+            self.get_logger().error(f'the simulator steps at dt = {dt} s but parameter dt is {self.dt} s: '
+                                    'frames are filed under the wrong steps')
+        if status.get('phase') == 'done' and self.stop_on_done and self.phase == 'recording':
+            self.phase = 'finishing'
+            self.final_step = int(status['final_step'])
+            self._done_wall = time.monotonic()
+            self._maybe_save()
+
+    def _on_timer(self) -> None:
+        self._publish_status()
+        if self._published_progress >= 0:  # the simulator may have missed the last one
+            self.progress_pub.publish(Int64(data=self._published_progress))
+        if self.phase == 'finishing':
+            self._maybe_save()
+
+    def _maybe_save(self) -> None:
+        complete = self.frames.progress >= self.final_step
+        late = time.monotonic() - self._done_wall > self.grace_period
+        if not (complete or late):
+            return
+        if not complete:
+            self.get_logger().warning(f'frames up to step {self.final_step} are still incomplete after '
+                                      f'{self.grace_period:g} s: filling gaps from neighbouring frames')
+        try:
+            self.save(last=self.final_step)
+        except (OSError, ValueError) as exc:
+            self.get_logger().error(f'cannot write {self.output}: {exc}')
+            self._finish(EXIT_FAILURE)
+            return
+        self.phase = 'saved'
+        self._publish_status()
+        # Make sure the simulator hears "saved" before this participant goes away.
+        self.status_pub.wait_for_all_acked(Duration(seconds=2.0))
+        self._finish(EXIT_OK)
+
+    def _publish_status(self) -> None:
+        self.status_pub.publish(String(data=status_json(
+            phase=self.phase, ready=self.frames.ready, heard=len(self.frames.heard), robots=self.frames.n,
+            progress=self.frames.progress, output=self.output, saved=self.saved_path)))
+
+    def _finish(self, code: int) -> None:
+        if not self.finished.done():
+            self.exit_code = code
+            self.finished.set_result(code)
+
+    # --- saving --------------------------------------------------------------------
+    def save(self, last=None, interrupted: bool = False) -> None:
+        """Write the trajectory file (atomically) with what has been recorded."""
+        from ..core.trajectory import save_trajectories
+        every = self.frame_every or int(self.source.get('publish_every') or 0) or None
+        states, info = self.frames.build(every, last)
+        meta = {'generator': 'knode_swarm_ros recorder', 'source': self.source, 'interrupted': interrupted,
+                'counters': dict(self.frames.counters), **info}
+        save_trajectories(self.output, states[None], self.dt * info['frame_every'], self.scenario, meta)
+        self.saved_path = self.output
+        a0, m0 = swarm_metrics(states[0], self.scenario)
+        a1, m1 = swarm_metrics(states[-1], self.scenario)
+        self.get_logger().info(
+            f'wrote {self.output}: {info["frames"]} frames of {self.frames.n} robots, dt '
+            f'{self.dt * info["frame_every"]:g} s{" (interrupted)" if interrupted else ""}; avd {a0:.3f} -> {a1:.3f}, '
+            f'amd {m0:.3f} -> {m1:.3f}; {info["incomplete_frames"]} incomplete frame(s)')
+
+    def save_on_exit(self) -> None:
+        """Ctrl-C / SIGTERM: save what there is, unless already saved."""
+        if self.saved_path is not None or not self.frames.frames:
+            return
+        try:
+            self.save(interrupted=True)
+        except (OSError, ValueError) as exc:
+            print(f'knode_swarm_ros recorder: cannot write {self.output}: {exc}', file=sys.stderr)
+
+
+def main(args=None):
+    """Entry point of the ``recorder`` executable."""
+    rclpy.init(args=args)
+    node = None
+    code = EXIT_OK
+    try:
+        node = RecorderNode()
+        executor = make_executor()
+        executor.add_node(node)
+        spin_until(executor, node.finished)
+        code = node.exit_code
+    except ConfigError as exc:
+        print(f'knode_swarm_ros recorder: error: {exc}', file=sys.stderr)
+        code = EXIT_CONFIG
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:
+        import traceback
+        traceback.print_exc()
+        print(f'knode_swarm_ros recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        code = EXIT_FAILURE
+    finally:
+        if node is not None:
+            node.save_on_exit()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,252 @@
+"""The nodes in this process on an isolated ROS domain, and the agent executable's start and errors.
+
+Hand-made Odometry goes in; the agent's command must be what the core computes for the same
+Y_i, the recorder's file what was published. Waiting is always a polled condition with a
+deadline, never a fixed sleep.
+"""
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+
+from geometry_msgs.msg import AccelStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from std_msgs.msg import Float64, Int64, String  # noqa: E402
+
+from knode_swarm_ros.nodes import qos  # noqa: E402
+from knode_swarm_ros.nodes.common import ConfigError, parse_status  # noqa: E402
+from knode_swarm_ros.nodes.conversions import msg_to_command, state_to_odom, time_msg  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+REPO = Path(__file__).resolve().parents[1]
+SEC = 1_000_000_000
+
+
+@pytest.fixture(scope='module')
+def flock_policy(tmp_path_factory):
+    import torch
+    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+    torch.manual_seed(4)
+    policy = KNODEPolicy(PolicyConfig('flock2d', **DEFAULTS['flock2d']))
+    path = tmp_path_factory.mktemp('policy') / 'flock2d.pt'
+    export_policy(policy, path, policy.metadata())
+    return path
+
+
+@pytest.fixture
+def ros(monkeypatch):
+    """An rclpy context of its own on a random domain, localhost only; shut down afterwards."""
+    domain = random.randint(30, 101)
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    nodes = []
+    executor = SingleThreadedExecutor(context=context)
+
+    class Ros:
+        def add(self, node):
+            nodes.append(node)
+            executor.add_node(node)
+            return node
+
+        def node(self, name):
+            return self.add(Node(name, context=context))
+
+        def spin_until(self, condition, timeout=20.0, each=None):
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                if each is not None:
+                    each()
+                executor.spin_once(timeout_sec=0.05)
+                if condition():
+                    return True
+            return False
+
+    Ros.context = context
+    yield Ros()
+    for node in nodes:
+        executor.remove_node(node)
+        node.destroy_node()
+    executor.shutdown()
+    rclpy.try_shutdown(context=context)
+
+
+def _agent(ros, **params):
+    from knode_swarm_ros.nodes.agent import AgentNode
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    return ros.add(AgentNode(f'agent_{params.get("id", 0)}', context=ros.context, parameter_overrides=overrides))
+
+
+def test_agent_publishes_the_command_the_core_predicts(ros, flock_policy):
+    from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+    agent = _agent(ros, id=1, robots=4, policy=str(flock_policy), mode='lockstep', use_sim_time=True)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(4)}
+    commands, statuses = [], []
+    io.create_subscription(AccelStamped, 'robot_1/cmd_accel', commands.append, qos.COMMAND)
+    io.create_subscription(String, 'robot_1/agent_status', lambda m: statuses.append(parse_status(m.data)),
+                           qos.STATUS)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 0.0, 1.0], [1.5, -0.4, -0.5, 0.5], [9.0, 9.0, 0.0, 0.0]])
+    stamp = 3 * 10_000_000  # step 3 of dt 0.01
+
+    def publish():  # peers first, the own state last; repeated until discovery has happened
+        for r in (3, 2, 0, 1):
+            pubs[r].publish(state_to_odom(r, stamp, Z[r], 'flock2d'))
+
+    assert ros.spin_until(lambda: commands, each=publish), 'no command from the agent'
+    ns, u = msg_to_command(commands[0], 'flock2d')
+    assert ns == stamp  # the stamp of the own state it was computed from
+    policy = load_policy(flock_policy)
+    Y, mask = neighbour_matrix_single(1, Z[1], Z, 2, policy.d_cr, policy.k)
+    assert mask.tolist() == [True, True, True, False, False, False]  # robot 3 is beyond d_cr
+    expected = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
+    assert np.allclose(u, expected, rtol=0, atol=1e-6)
+    assert ros.spin_until(lambda: statuses and statuses[-1]['ready'])
+    assert statuses[-1]['heard'] == 4 and statuses[-1]['answered'] == 3
+
+    # What a bad network delivers is dropped and counted.
+    bad = state_to_odom(2, stamp + 10_000_000, Z[2], 'flock2d')
+    bad.pose.pose.position.x = float('nan')
+    stranger = state_to_odom(9, stamp + 10_000_000, Z[2], 'flock2d')  # claims robot 9 on robot_2/odom
+    pubs[2].publish(bad)
+    pubs[2].publish(stranger)
+    pubs[2].publish(b'\x00\x01\x00\x00 not an Odometry')  # serialized bytes that do not decode
+    counters = agent.logic.counters
+    assert ros.spin_until(lambda: (counters['non_finite'], counters['unknown_id'], counters['malformed']) == (1, 1, 1))
+
+
+def test_realtime_agent_ticks_on_sim_time_and_stops_when_its_state_is_stale(ros, flock_policy):
+    _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime', use_sim_time=True,
+           control_rate=10.0, state_timeout=0.3)
+    io = ros.node('test_clock')
+    clock = io.create_publisher(Clock, '/clock', qos.CLOCK)
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
+    commands = []
+    io.create_subscription(AccelStamped, 'robot_0/cmd_accel', lambda m: commands.append(msg_to_command(m, 'flock2d')),
+                           qos.COMMAND)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 0.0, 1.0]])
+    t = [SEC]
+
+    def fresh():  # states at t, then the clock at t, advancing 0.1 s each call
+        t[0] += SEC // 10
+        for r in range(2):
+            pubs[r].publish(state_to_odom(r, t[0], Z[r], 'flock2d'))
+        clock.publish(Clock(clock=time_msg(t[0])))
+
+    assert ros.spin_until(lambda: any(np.any(u != 0) for _, u in commands), each=fresh)
+    stamp, u = next(c for c in commands if np.any(c[1] != 0))
+    assert stamp % (SEC // 10) == 0 and stamp > SEC
+    last_state = t[0]
+    commands.clear()
+
+    def clock_only():  # time goes on, no state arrives
+        t[0] += SEC // 10
+        clock.publish(Clock(clock=time_msg(t[0])))
+
+    assert ros.spin_until(lambda: any(ns > last_state + 3 * SEC // 10 and np.all(u == 0) for ns, u in commands),
+                          each=clock_only), 'no stop command for a stale own state'
+
+
+def test_policy_that_contradicts_a_parameter_fails_fast(ros, flock_policy):
+    with pytest.raises(ConfigError) as exc:
+        _agent(ros, id=0, robots=3, policy=str(flock_policy), k=5)
+    assert "parameter 'k' = 5" in str(exc.value) and 'k = 6' in str(exc.value)
+    with pytest.raises(ConfigError, match=r"parameter 'tau' = 2 contradicts .* tau = 0"):
+        _agent(ros, id=0, robots=3, policy=str(flock_policy), tau=2)
+    with pytest.raises(ConfigError, match=r"parameter 'd_cr' = 4.0 contradicts .* d_cr = 5.0"):
+        _agent(ros, id=0, robots=3, policy=str(flock_policy), d_cr=4.0)
+
+
+def _env(domain):
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    return env
+
+
+@pytest.mark.parametrize('case', ['missing', 'corrupt', 'bad_parameter'])
+def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
+    if case == 'missing':
+        args, expect = ['-p', f'policy:={tmp_path}/nope.pt'], 'nope.pt: no such file'
+    elif case == 'corrupt':
+        bad = tmp_path / 'corrupt.pt'
+        bad.write_bytes(b'PK\x03\x04 this is not a TorchScript archive')
+        args, expect = ['-p', f'policy:={bad}'], 'not a readable TorchScript archive'
+    else:
+        args, expect = ['-p', 'control_rate:=-5.0'], "parameter 'control_rate' = -5.0 is out of range"
+    proc = subprocess.run([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=0', *args],
+                          env=_env(random.randint(30, 101)), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert expect in proc.stderr and 'Traceback' not in proc.stderr
+
+
+def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path):
+    from knode_swarm_ros.core.policy_io import PolicyError, shipped_policy_path
+    try:
+        shipped_policy_path('flock2d')
+    except PolicyError as exc:
+        pytest.skip(f'no shipped flock2d policy yet: {exc}')
+    log = tmp_path / 'agent.log'
+    with open(log, 'wb') as out:
+        proc = subprocess.Popen([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=3',
+                                 '--params-file', str(REPO / 'config' / 'agent_flock2d.yaml')],
+                                env=_env(random.randint(30, 101)), stdout=out, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and proc.poll() is None and 'robot 3 of 10' not in log.read_text():
+            time.sleep(0.1)  # polling a condition (the log line), not a synchronising sleep
+        text = log.read_text()
+        assert proc.poll() is None, f'agent exited with {proc.returncode}:\n{text}'
+        assert '[agent_3]' in text and 'publishing /robot_3/cmd_accel' in text
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_recorder_writes_what_it_heard_and_publishes_metrics(ros, tmp_path):
+    from knode_swarm_ros.core import load_trajectories
+    from knode_swarm_ros.nodes.common import status_json
+    from knode_swarm_ros.nodes.recorder import RecorderNode
+    out = tmp_path / 'rec.npz'
+    recorder = ros.add(RecorderNode('recorder', context=ros.context, parameter_overrides=[
+        Parameter('robots', value=3), Parameter('output', value=str(out)), Parameter('metrics_rate', value=1000.0)]))
+    io = ros.node('test_sim')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(3)}
+    status = io.create_publisher(String, 'simulator/status', qos.STATUS)
+    avd, progress = [], []
+    io.create_subscription(Float64, 'recorder/avd', lambda m: avd.append(m.data), qos.METRICS)
+    io.create_subscription(Int64, 'recorder/progress', lambda m: progress.append(m.data), qos.PROGRESS)
+    rng = np.random.default_rng(0)
+    frames = rng.normal(size=(5, 3, 4))
+
+    def publish():  # every frame again until the recorder has them all (duplicates are ignored)
+        for t in range(5):
+            for r in range(3):
+                pubs[r].publish(state_to_odom(r, t * 10_000_000, frames[t, r], 'flock2d'))
+
+    assert ros.spin_until(lambda: recorder.frames.progress == 4 and progress and progress[-1] == 4 and avd,
+                          each=publish)
+    status.publish(String(data=status_json(phase='done', final_step=4, publish_every=1, dt=0.01,
+                                           scenario='flock2d', robots=3, mode='lockstep')))
+    assert ros.spin_until(lambda: recorder.finished.done())
+    assert recorder.exit_code == 0 and out.is_file()
+    data = load_trajectories(out)
+    assert np.array_equal(data.states[0], frames) and data.dt == pytest.approx(0.01)
+    assert data.meta['interrupted'] is False and data.meta['source']['mode'] == 'lockstep'

@@ -1,0 +1,237 @@
+"""Whole swarms through the real processes: the ``swarm`` launcher, simulator, agents, recorder.
+
+* lockstep parity: flock2d (10 robots, 300 steps, tau 0) and boids3d (tau 1) equal
+  core.rollout from the recorded initial state within 1e-5 (they are in fact bit for bit equal);
+* an agent killed mid-run: the others go on, the simulator holds the robot, the launcher
+  reports it (exit status 3) and leaves neither processes nor shared-memory files behind;
+* realtime mode records, and Ctrl-C on the launcher stops everything with the file saved;
+* ground-truth mode records exactly what the ground truth computes.
+
+Each run has its own ROS domain (the launcher draws one) and localhost-only discovery.
+Waiting is always for a condition (a line of output, a file) with a deadline.
+"""
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+
+from knode_swarm_ros.core import load_policy, load_trajectories, save_trajectories  # noqa: E402
+from knode_swarm_ros.core.rollout import rollout  # noqa: E402  (module path: see docs/ros.md, "Notes")
+
+pytestmark = pytest.mark.ros
+
+RUN_TIMEOUT = 240
+
+
+@pytest.fixture(scope='module')
+def policies(tmp_path_factory):
+    """Untrained, seeded policy files (the tests do not depend on the shipped ones)."""
+    import torch
+    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+    out = {}
+    for scenario in ('flock2d', 'boids3d'):
+        torch.manual_seed(7)
+        policy = KNODEPolicy(PolicyConfig(scenario, **DEFAULTS[scenario]))
+        path = tmp_path_factory.mktemp('policies') / f'{scenario}.pt'
+        export_policy(policy, path, policy.metadata())
+        out[scenario] = path
+    return out
+
+
+def _env():
+    env = dict(os.environ)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+def _cmd(tmp_path, *args):
+    return [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(tmp_path / 'logs'),
+            '--no-figure', *map(str, args)]
+
+
+def _run(tmp_path, *args):
+    proc = subprocess.run(_cmd(tmp_path, *args), env=_env(), capture_output=True, text=True, timeout=RUN_TIMEOUT)
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+class Launcher:
+    """The launcher as a background process whose output lines are collected as they come."""
+
+    def __init__(self, tmp_path, *args):
+        self.lines = []
+        self.proc = subprocess.Popen(_cmd(tmp_path, *args), env=_env(), stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip('\n'))
+
+    @property
+    def output(self):
+        return '\n'.join(self.lines)
+
+    def wait_for(self, text, timeout=RUN_TIMEOUT):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(text in line for line in self.lines):
+                return True
+            if self.proc.poll() is not None:
+                self.reader.join(timeout=5)
+                return any(text in line for line in self.lines)
+            time.sleep(0.05)  # polling the collected output for a condition
+        return False
+
+    def finish(self, timeout=RUN_TIMEOUT):
+        try:
+            rc = self.proc.wait(timeout=timeout)
+        finally:
+            if self.proc.poll() is None:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        self.reader.join(timeout=10)
+        return rc
+
+
+def _pids(tmp_path):
+    return json.loads((tmp_path / 'logs' / 'pids.json').read_text())
+
+
+def _assert_no_strays(tmp_path):
+    alive = []
+    for name, pid in _pids(tmp_path).items():
+        try:
+            os.kill(pid, 0)
+            alive.append(f'{name} ({pid})')
+        except ProcessLookupError:
+            pass
+    assert not alive, f'processes left running: {alive}'
+
+
+def _parity(record, policy_path, steps):
+    data = load_trajectories(record)
+    states = data.states[0]
+    assert states.shape[0] == steps + 1
+    assert data.meta['incomplete_frames'] == 0 and data.meta['filled_entries'] == 0
+    policy = load_policy(policy_path)
+    ref = rollout(policy, states[0], steps, data.scenario, policy.d_cr, policy.k, policy.tau, policy.dt)
+    return float(np.abs(ref - states).max())
+
+
+def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, policies):
+    record = tmp_path / 'flock.npz'
+    rc, out = _run(tmp_path, '--policy', policies['flock2d'], '--robots', 10, '--steps', 300, '--seed', 3,
+                   '--record', record)
+    assert rc == 0, out
+    diff = _parity(record, policies['flock2d'], 300)
+    assert diff <= 1e-5, f'max state difference {diff}'
+    assert 'avd (velocity difference)' in out and 'every process has stopped' in out
+    report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
+    assert report['steps_run'] == 300 and report['lost'] == [] and report['counters']['accepted'] >= 3010
+    _assert_no_strays(tmp_path)
+
+
+def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, policies):
+    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    z0, _ = initial_state('boids3d', 10, seed=4)
+    init = tmp_path / 'init.npz'
+    save_trajectories(init, np.stack([z0 + 1.0, z0])[:, None], 1 / 60, 'boids3d')
+    assert load_policy(policies['boids3d']).tau == 1
+    record = tmp_path / 'boids.npz'
+    rc, out = _run(tmp_path, '--policy', policies['boids3d'], '--init', f'{init}:1', '--steps', 300,
+                   '--record', record)
+    assert rc == 0, out
+    assert np.allclose(load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15)  # heading via quaternion
+    diff = _parity(record, policies['boids3d'], 300)
+    assert diff <= 1e-5, f'max state difference {diff}'
+    _assert_no_strays(tmp_path)
+
+
+def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, policies):
+    from knode_swarm_ros.nodes import swarm
+    shm_before = swarm.shm_snapshot()
+    record = tmp_path / 'kill.npz'
+    steps = 600
+    run = Launcher(tmp_path, '--policy', policies['flock2d'], '--robots', 5, '--steps', steps, '--seed', 1,
+                   '--lockstep-timeout', 1.0, '--record', record)
+    assert run.wait_for('ready after'), run.output
+    victim = _pids(tmp_path)['agent_2']
+    os.kill(victim, signal.SIGKILL)
+    rc = run.finish()
+    out = run.output
+    assert rc == 3, out
+    assert f'agent_2 (pid {victim}) killed by SIGKILL' in out
+    assert 'the other agents go on' in out and 'agent process(es) died during the run' in out
+    sim_log = (tmp_path / 'logs' / 'simulator.log').read_text()
+    assert 'robot(s) [2]: no command for step' in sim_log and 'holding their last command' in sim_log
+    report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
+    assert report['lost'] == [2] and report['steps_run'] == steps
+    # The other agents answered to the end and stopped cleanly (their reports are written at exit).
+    for i in (0, 1, 3, 4):
+        agent = json.loads((tmp_path / 'logs' / f'agent_{i}.json').read_text())
+        assert agent['answered'] == steps and agent['counters']['commands'] >= steps
+    assert not (tmp_path / 'logs' / 'agent_2.json').exists()
+    # The recording is complete, and robot 2 is held at its last command (constant acceleration).
+    data = load_trajectories(record)
+    states = data.states[0]
+    assert states.shape[0] == steps + 1 and data.meta['incomplete_frames'] == 0
+    accel = np.diff(states[-50:, 2, 2:], axis=0) / data.dt
+    assert np.allclose(accel, accel[0], atol=1e-6)
+    _assert_no_strays(tmp_path)
+    # No shared-memory file of this run is left: no unlocked lock file, no port of its domain.
+    domain = int(re.search(r'ROS_DOMAIN_ID=(\d+)', out).group(1))
+    ours = range(7400 + 250 * domain, 7400 + 250 * (domain + 1))
+    left = []
+    for name in swarm.shm_snapshot() - shm_before:
+        port = re.match(r'(?:sem\.)?fastrtps_port(\d+)', name)
+        if port and int(port.group(1)) in ours:
+            left.append(name)
+        elif name.endswith(('_el', '_sl')) and not swarm._locked(swarm.SHM_DIR / name):
+            left.append(name)
+    assert not left, f'stale shared-memory files left: {left}'
+
+
+def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_path, policies):
+    record = tmp_path / 'rt.npz'
+    run = Launcher(tmp_path, '--policy', policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
+                   '--rate', 20, '--record', record)
+    assert run.wait_for('steps/s'), run.output   # the simulator's first progress line: running for a while
+    os.killpg(run.proc.pid, signal.SIGINT)       # Ctrl-C in the launcher's terminal
+    rc = run.finish()
+    out = run.output
+    assert rc == 130, out
+    assert 'SIGINT: stopping every process' in out and 'every process has stopped' in out
+    data = load_trajectories(record)
+    assert data.meta['interrupted'] is True and data.dt == pytest.approx(0.05)
+    states = data.states[0]
+    assert states.shape[0] >= 40
+    # Frames are 5 simulation steps apart and the robots were driven by the agents.
+    report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
+    assert report['mode'] == 'realtime' and report['publish_every'] == 5
+    assert report['counters']['accepted'] >= 4 * 30 and report['latency_ms']['count'] >= 4 * 30
+    _assert_no_strays(tmp_path)
+
+
+def test_ground_truth_mode_records_the_ground_truth(tmp_path):
+    from knode_swarm_ros.core.groundtruth import simulate
+    record = tmp_path / 'gt.npz'
+    rc, out = _run(tmp_path, '--ground-truth', '--scenario', 'flock2d', '--robots', 6, '--steps', 200,
+                   '--seed', 5, '--record', record)
+    assert rc == 0, out
+    assert 'no agents' in out
+    got = load_trajectories(record)
+    ref = simulate('flock2d', 1, 6, 201, seed=5, progress=False)
+    assert got.states.shape == ref.shape and np.array_equal(got.states, ref)
+    assert got.meta['source']['ground_truth'] is True
+    _assert_no_strays(tmp_path)
