@@ -11,7 +11,7 @@ PYTEST_ARGS ?=
 ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
           AMENT_PREFIX_PATH="$(VENV_PREFIX)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
 
-.PHONY: all venv test demo bench clean distclean
+.PHONY: all venv test demo demo-offline bench clean distclean
 
 all: test
 
@@ -34,7 +34,14 @@ $(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setu
 test: $(VENV)/.installed
 	$(ROS_ENV) $(PY) -m pytest -q tests $(PYTEST_ARGS)
 
+# The main job: the shipped flock2d policy on 10 robots, one OS process per agent plus the
+# simulator and the recorder (lockstep), then the metrics of the recorded run and a figure.
 demo: $(VENV)/.installed
+	$(ROS_ENV) $(VENV)/bin/swarm --scenario flock2d --robots 10 --steps 2000 --mode lockstep \
+	  --record out/demo/swarm_flock2d.npz --figure out/demo/swarm_flock2d.png
+
+# Without ROS: data, offline rollouts of the shipped policy against the ground truth.
+demo-offline: $(VENV)/.installed
 	$(ROS_ENV) $(PY) -m training.demo
 
 bench: $(VENV)/.installed
