@@ -226,12 +226,23 @@ def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_pa
 def test_ground_truth_mode_records_the_ground_truth(tmp_path):
     from knode_swarm_ros.core.groundtruth import simulate
     record = tmp_path / 'gt.npz'
+    bag = tmp_path / 'gt.mcap'
     rc, out = _run(tmp_path, '--ground-truth', '--scenario', 'flock2d', '--robots', 6, '--steps', 200,
-                   '--seed', 5, '--record', record)
+                   '--seed', 5, '--record', record, '--bag', bag)
     assert rc == 0, out
     assert 'no agents' in out
     got = load_trajectories(record)
     ref = simulate('flock2d', 1, 6, 201, seed=5, progress=False)
     assert got.states.shape == ref.shape and np.array_equal(got.states, ref)
     assert got.meta['source']['ground_truth'] is True
+    # Observe, learn, deploy: the run's bag imports back into the same trajectory (positions
+    # are stored exactly; velocities come from central differences of the resampled positions).
+    from training.import_bag import ImportOptions, import_bag
+    imported = import_bag(bag, ImportOptions(scenario='flock2d', rate=100.0, topics=['/robot_*/odom'])).states
+    assert imported.shape == (1, 201, 6, 4)
+    np.testing.assert_allclose(imported[0, :, :, :2], ref[0, :, :, :2], atol=1e-9)
+    central = (ref[0, 2:, :, :2] - ref[0, :-2, :, :2]) / 0.02
+    np.testing.assert_allclose(imported[0, 1:-1, :, 2:], central, atol=1e-6)
+    # ... which is the true velocity up to the central-difference error jerk dt^2 / 6 (< 1e-2 here).
+    np.testing.assert_allclose(imported[0, 1:-1, :, 2:], ref[0, 1:-1, :, 2:], atol=1e-2)
     _assert_no_strays(tmp_path)

@@ -52,6 +52,8 @@ class RecorderNode(Node):
         self.stop_on_done = declare(self, 'stop_on_done', True, 'save and exit when the simulator is done')
         self.grace_period = declare(self, 'grace_period', 3.0, 'wall seconds to wait for missing frames after '
                                     'the simulator is done', float_range=(0.0, 3600.0))
+        self.bag = declare(self, 'bag', '', 'also write the recorded odometry as a bag: an .mcap file, else a '
+                           'rosbag2 directory (needs the mcap packages of requirements-dev.txt)')
         metrics_rate = declare(self, 'metrics_rate', 5.0, 'avd/amd messages per wall second (0: none)',
                                float_range=(0.0, 1000.0))
         if not self.output:
@@ -185,6 +187,11 @@ class RecorderNode(Node):
                 'counters': dict(self.frames.counters), **info}
         save_trajectories(self.output, states[None], self.dt * info['frame_every'], self.scenario, meta)
         self.saved_path = self.output
+        if self.bag:
+            # The same topics and messages a rosbag2 recording of the run would hold.
+            from .bag_writer import write_odometry_bag
+            write_odometry_bag(self.bag, states, self.dt * info['frame_every'], self.scenario, overwrite=True)
+            self.get_logger().info(f'wrote the bag {self.bag}')
         a0, m0 = swarm_metrics(states[0], self.scenario)
         a1, m1 = swarm_metrics(states[-1], self.scenario)
         self.get_logger().info(

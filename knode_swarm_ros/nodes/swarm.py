@@ -74,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
     p.add_argument('--seed', type=int, default=0, help='seed of the initial state (without --init); default 0')
     p.add_argument('--record', metavar='OUT.npz', required=True, help='trajectory file to write')
+    p.add_argument('--bag', metavar='OUT.mcap', help='also write the run as a bag of /robot_<id>/odom (an .mcap '
+                   'file, else a rosbag2 directory), for training.import_bag')
     p.add_argument('--ground-truth', action='store_true',
                    help='the simulator drives the robots with the Tanner / boids controller; no agents')
     p.add_argument('--variant', default='', help='ground-truth variant / preset (default: paper)')
@@ -221,7 +223,7 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
            'startup_timeout': float(a.startup_timeout), 'wait_for_agents': not gt, 'wait_for_recorder': True,
            'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json')}
     rec = {'scenario': plan.scenario, 'robots': plan.robots, 'output': str(plan.record), 'dt': float(plan.dt),
-           'use_sim_time': True}
+           'bag': os.path.abspath(a.bag) if a.bag else '', 'use_sim_time': True}
     python = [sys.executable, '-m']
     out = {'simulator': python + [f'{PACKAGE}.nodes.simulator', '--ros-args', '--params-file',
                                   str(_params_file(plan.run_dir / 'simulator.yaml', sim))],
