@@ -92,7 +92,7 @@ def test_heading_quaternion_rotates_x_onto_the_heading():
 
 
 def test_bag_messages_match_the_nodes_conversion_module():
-    """bag_writer mirrors knode_swarm_ros.nodes.conversions (which needs the ROS messages)."""
+    """bag_writer writes what knode_swarm_ros.nodes.conversions (which needs the ROS messages) publishes."""
     conv = pytest.importorskip("knode_swarm_ros.nodes.conversions")
     rng = np.random.default_rng(4)
     h = rng.normal(size=(40, 3))

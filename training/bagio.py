@@ -24,6 +24,8 @@ from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence, Tupl
 
 import numpy as np
 
+from knode_swarm_ros.nodes.orientation import quaternion_to_heading
+
 __all__ = ["BagError", "Bag", "Sample", "SourceSamples", "open_bag", "normalise_type", "SUPPORTED_TYPES",
            "ODOMETRY", "POSE_STAMPED", "TF_MESSAGE", "quaternion_to_heading", "rotate_by_quaternion"]
 
@@ -303,15 +305,6 @@ def samples_of(type_name: str, msg: Any, log_ns: int) -> List[Tuple[Optional[str
 
 
 # --- Quaternions ------------------------------------------------------------------------------
-
-def quaternion_to_heading(q: np.ndarray) -> np.ndarray:
-    """Unit headings ``[..., 3]``: the body +x axis of quaternions ``q[..., 4]`` (x, y, z, w), i.e.
-    the first column of the rotation matrix (normalises q first)."""
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
-
 
 def rotate_by_quaternion(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v[..., 3]`` by unit quaternions ``q[..., 4]`` (x, y, z, w): body -> world."""

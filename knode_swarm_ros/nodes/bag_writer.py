@@ -12,8 +12,10 @@ the message as the conversion module of the nodes maps it:
   velocities, else zero.
 
 This is the mapping of :mod:`knode_swarm_ros.nodes.conversions` (the one place that defines
-it); that module needs the ROS message packages, so the numbers are mirrored here and
-tests/test_import_bag.py checks that both produce the same messages.
+it). That module needs the ROS message packages, so the message layout is written here as
+dicts for mcap-ros2-support, with the orientation maths shared from the ROS-free
+:mod:`knode_swarm_ros.nodes.orientation`; tests/test_import_bag.py checks that both produce
+the same messages.
 
 ``mcap`` is not a robot runtime dependency: it is imported only when a bag is written.
 ``training.import_bag`` reads these bags (and real ones) back into trajectory files.
@@ -34,7 +36,6 @@ mcap-ros2-support's writer does not set; ``ros2 bag play`` then uses default QoS
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import shutil
@@ -47,6 +48,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from .common import WORLD_FRAME, robot_frame
+from .orientation import heading_to_quaternion, yaw_quaternion
 
 __all__ = ["write_odometry_bag", "BagWriter", "message_definition", "heading_to_quaternion",
            "odometry_message", "yaw_quaternion", "stamp_to_ns", "ns_to_stamp", "BagWriteError", "ODOMETRY",
@@ -201,42 +203,6 @@ def ns_to_stamp(ns: int) -> Dict[str, int]:
     if not (-2 ** 31 <= sec < 2 ** 31):
         raise BagWriteError(f"stamp {ns} ns does not fit builtin_interfaces/Time (int32 seconds)")
     return {"sec": sec, "nanosec": nanosec}
-
-
-def _shortest_arc(u: np.ndarray) -> np.ndarray:
-    """normalise(w = 1 + h_x, (x, y, z) = (+x) x h = (0, -h_z, h_y)) as (x, y, z, w), for unit h."""
-    q = np.stack([np.zeros_like(u[..., 0]), -u[..., 2], u[..., 1], 1.0 + u[..., 0]], axis=-1)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def heading_to_quaternion(h: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``[..., 4]`` (x, y, z, w) rotating +x onto the headings ``h[..., 3]``.
-
-    The same encoding as :func:`knode_swarm_ros.nodes.conversions.heading_to_quaternion` (which
-    needs the ROS message packages, so it is mirrored here; a test checks they agree): h is
-    normalised; for h_x >= 0 the shortest arc; for h_x < 0 the rotation by pi about +z after
-    the shortest arc onto (-h_x, -h_y, h_z), i.e. (-y', x', w', -z'); a zero h gives the
-    identity. The rotated +x axis is h / |h| up to rounding.
-    """
-    h = np.asarray(h, dtype=np.float64)
-    norm = np.linalg.norm(h, axis=-1, keepdims=True)
-    zero = ~(norm[..., 0] > 0.0)
-    u = h / np.where(zero[..., None], 1.0, norm)
-    pos = _shortest_arc(np.where((u[..., :1] >= 0.0), u, np.array([1.0, 0.0, 0.0])))
-    flipped = _shortest_arc(np.where((u[..., :1] < 0.0), u * np.array([-1.0, -1.0, 1.0]),
-                                     np.array([1.0, 0.0, 0.0])))
-    neg = np.stack([-flipped[..., 1], flipped[..., 0], flipped[..., 3], -flipped[..., 2]], axis=-1)
-    q = np.where(u[..., :1] >= 0.0, pos, neg)
-    return np.where(zero[..., None], np.array([0.0, 0.0, 0.0, 1.0]), q)
-
-
-def yaw_quaternion(vx: float, vy: float) -> Tuple[float, float, float, float]:
-    """(x, y, z, w) of the rotation about +z by atan2(vy, vx); identity for a zero vector (the
-    flock2d orientation of conversions.py, for RViz only: not part of the state)."""
-    if vx == 0.0 and vy == 0.0:
-        return 0.0, 0.0, 0.0, 1.0
-    half = 0.5 * math.atan2(vy, vx)
-    return 0.0, 0.0, math.sin(half), math.cos(half)
 
 
 def odometry_message(scenario: str, z: np.ndarray, stamp_ns: int, robot_id: int, frame_id: str = WORLD_FRAME,

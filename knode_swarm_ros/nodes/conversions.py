@@ -45,7 +45,6 @@ command was computed from, ``header.frame_id = 'world'``.
 """
 from __future__ import annotations
 
-import math
 import struct
 from typing import Optional, Tuple, Union
 
@@ -55,7 +54,9 @@ from geometry_msgs.msg import AccelStamped, TwistStamped
 from nav_msgs.msg import Odometry
 
 from ..core.scenarios import Scenario, get_scenario
+from . import orientation
 from .common import WORLD_FRAME, robot_frame
+from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
            'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr',
@@ -81,47 +82,14 @@ def time_ns(stamp: Time) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-def _shortest_arc(hx: float, hy: float, hz: float) -> Tuple[float, float, float, float]:
-    # q = normalise(1 + hx, (+x) x h); well conditioned for hx >= 0 (|q| >= 1 before normalising).
-    w, x, y, z = 1.0 + hx, 0.0, -hz, hy
-    q = math.sqrt(w * w + x * x + y * y + z * z)
-    return x / q, y / q, z / q, w / q
-
-
 def heading_to_quaternion(h) -> Tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation taking +x onto ``h`` (normalised first).
-
-    For h_x >= 0 the shortest arc; for h_x < 0, where the shortest-arc formula loses
-    precision, the rotation by pi about +z after the shortest arc onto (-h_x, -h_y, h_z).
-    A zero ``h`` gives the identity.
-    """
-    h = np.asarray(h, dtype=np.float64)
-    norm = float(np.linalg.norm(h))
-    if not norm > 0.0:
-        return 0.0, 0.0, 0.0, 1.0
-    hx, hy, hz = (h / norm).tolist()
-    if hx >= 0.0:
-        return _shortest_arc(hx, hy, hz)
-    # q = (0, 0, 1, 0) (pi about z) times q' (x', y', z', w') = (-y', x', w', -z')
-    x1, y1, z1, w1 = _shortest_arc(-hx, -hy, hz)
-    return -y1, x1, w1, -z1
+    """(x, y, z, w) of the rotation taking +x onto ``h`` (see :mod:`.orientation`)."""
+    return tuple(float(v) for v in orientation.heading_to_quaternion(h))
 
 
 def quaternion_to_heading(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """The image of +x under the rotation (x, y, z, w) (normalised first) -> ``[3]``."""
-    q = math.sqrt(x * x + y * y + z * z + w * w)
-    if not q > 0.0:
-        return np.array([1.0, 0.0, 0.0])
-    x, y, z, w = x / q, y / q, z / q, w / q
-    return np.array([1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)])
-
-
-def yaw_quaternion(vx: float, vy: float) -> Tuple[float, float, float, float]:
-    """(x, y, z, w) of the rotation about +z by atan2(vy, vx); identity for a zero vector."""
-    if vx == 0.0 and vy == 0.0:
-        return 0.0, 0.0, 0.0, 1.0
-    half = 0.5 * math.atan2(vy, vx)
-    return 0.0, 0.0, math.sin(half), math.cos(half)
+    """The image ``[3]`` of +x under the rotation (x, y, z, w) (see :mod:`.orientation`)."""
+    return orientation.quaternion_to_heading(np.array([x, y, z, w], dtype=np.float64))
 
 
 def state_to_odom(robot: int, ns: int, z, scenario: ScenarioLike,
