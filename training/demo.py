@@ -16,7 +16,6 @@ import sys
 import time
 from typing import List, Optional
 
-import numpy as np
 import torch
 
 from knode_swarm_ros.core import PolicyError, save_trajectories, shipped_policy_path

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_scenario, load_policy,
-                                  load_trajectories, pod_energy, pod_kld, rollout)
+                                  load_trajectories, pod_energy, rollout)
 
 from . import figures
 from .common import final_metrics, mean_ci, write_json

@@ -31,7 +31,7 @@ from knode_swarm_ros.core import TrajectoryError, export_policy, get_scenario, l
 from knode_swarm_ros.core.trajectory import atomic_write
 
 from .common import (ConfigError, Samples, augment_batch, build_policy, final_metrics, git_commit, load_config, loss_scales,
-                     implied_command, make_samples, normalise_config, one_step_loss, predict_next, rollout_module, selection_score,
+                     implied_command, make_samples, one_step_loss, predict_next, rollout_module, selection_score,
                      write_json)
 
 

@@ -18,19 +18,17 @@ import sys
 import time
 from functools import partial
 
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_msgs.msg import String
 
 from . import qos
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
-from .common import (EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MODES, ConfigError, agent_status_topic,
+from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, odom_topic, robot_frame, robot_id_list, status_json)
 from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
-from .executor import make_executor, spin_until
+from .executor import run_node
 from .params import declare, declare_int_array, node_name_from_args
 
 __all__ = ['AgentNode', 'main', 'load_agent_policy']
@@ -253,34 +251,8 @@ class AgentNode(Node):
 
 def main(args=None):
     """Entry point of the ``agent`` executable."""
-    rclpy.init(args=args)
-    node = None
-    code = EXIT_OK
-    try:
-        node = AgentNode(node_name_from_args(args if args is not None else sys.argv, 'agent'))
-        executor = make_executor()
-        executor.add_node(node)
-        spin_until(executor)
-    except ConfigError as exc:
-        print(f'knode_swarm_ros agent: error: {exc}', file=sys.stderr)
-        code = EXIT_CONFIG
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # report, then exit non-zero instead of a bare traceback
-        import traceback
-        traceback.print_exc()
-        print(f'knode_swarm_ros agent: error: {type(exc).__name__}: {exc}', file=sys.stderr)
-        code = EXIT_FAILURE
-    finally:
-        if node is not None:
-            try:
-                node.write_report()
-            except OSError as exc:
-                print(f'knode_swarm_ros agent: cannot write the report: {exc}', file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    argv = args if args is not None else sys.argv
+    run_node('agent', lambda: AgentNode(node_name_from_args(argv, 'agent')), AgentNode.write_report, args)
 
 
 if __name__ == '__main__':

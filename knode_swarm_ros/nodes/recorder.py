@@ -14,22 +14,20 @@ import sys
 import time
 from functools import partial
 
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import Float64, Int64, String
 
 from ..core.scenarios import get_scenario
 from . import qos
-from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, RECORDER_PROGRESS_TOPIC,
+from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_FAILURE, EXIT_OK, RECORDER_PROGRESS_TOPIC,
                      RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError, odom_topic, parse_status,
                      robot_frame, status_json, step_of)
 from .conversions import CdrError, odom_from_cdr
-from .executor import make_executor, spin_until
+from .executor import run_node
 from .params import declare
 from .recorder_logic import FrameCollector, swarm_metrics
 
@@ -211,32 +209,7 @@ class RecorderNode(Node):
 
 def main(args=None):
     """Entry point of the ``recorder`` executable."""
-    rclpy.init(args=args)
-    node = None
-    code = EXIT_OK
-    try:
-        node = RecorderNode()
-        executor = make_executor()
-        executor.add_node(node)
-        spin_until(executor, node.finished)
-        code = node.exit_code
-    except ConfigError as exc:
-        print(f'knode_swarm_ros recorder: error: {exc}', file=sys.stderr)
-        code = EXIT_CONFIG
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        import traceback
-        traceback.print_exc()
-        print(f'knode_swarm_ros recorder: error: {type(exc).__name__}: {exc}', file=sys.stderr)
-        code = EXIT_FAILURE
-    finally:
-        if node is not None:
-            node.save_on_exit()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    run_node('recorder', RecorderNode, RecorderNode.save_on_exit, args)
 
 
 if __name__ == '__main__':

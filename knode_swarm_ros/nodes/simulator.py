@@ -15,14 +15,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 from functools import partial
 
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -31,11 +28,11 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.scenarios import get_scenario
 from . import qos
-from .common import (CLOCK_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MARKERS_TOPIC, MODES,
+from .common import (CLOCK_TOPIC, EXIT_FAILURE, EXIT_OK, MARKERS_TOPIC, MODES,
                      RECORDER_PROGRESS_TOPIC, RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError,
                      agent_status_topic, command_topic, odom_topic, parse_status, status_json)
 from .conversions import command_msg_type, msg_to_command, odom_to_cdr, time_msg
-from .executor import make_executor, spin_until
+from .executor import run_node
 from .markers import swarm_markers
 from .params import declare
 from .simulator_logic import SwarmSim, initial_state, initial_state_from_file, make_ground_truth
@@ -390,35 +387,7 @@ def _ids(ids) -> str:
 
 def main(args=None):
     """Entry point of the ``simulator`` executable."""
-    rclpy.init(args=args)
-    node = None
-    code = EXIT_OK
-    try:
-        node = SimulatorNode()
-        executor = make_executor()
-        executor.add_node(node)
-        spin_until(executor, node.finished)
-        code = node.exit_code
-    except ConfigError as exc:
-        print(f'knode_swarm_ros simulator: error: {exc}', file=sys.stderr)
-        code = EXIT_CONFIG
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        import traceback
-        traceback.print_exc()
-        print(f'knode_swarm_ros simulator: error: {type(exc).__name__}: {exc}', file=sys.stderr)
-        code = EXIT_FAILURE
-    finally:
-        if node is not None:
-            try:
-                node.write_report()
-            except OSError as exc:
-                print(f'knode_swarm_ros simulator: cannot write the report: {exc}', file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    run_node('simulator', SimulatorNode, SimulatorNode.write_report, args)
 
 
 if __name__ == '__main__':
