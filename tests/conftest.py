@@ -57,3 +57,21 @@ def pytest_configure(config):
     config.addinivalue_line(
         'markers', 'ros: starts ROS 2 nodes (in-process rclpy or multi-process swarms); '
                    'deselect with -m "not ros"')
+
+
+# --- policy files ------------------------------------------------------------------------
+
+@pytest.fixture(scope='session')
+def untrained_policies(tmp_path_factory):
+    """Seeded, untrained policy files of both scenarios, ``{scenario: path}``: node and
+    swarm tests must not depend on the shipped, trained ones."""
+    import torch
+    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+    out = {}
+    for scenario in ('flock2d', 'boids3d'):
+        torch.manual_seed(3)
+        policy = KNODEPolicy(PolicyConfig(scenario, **DEFAULTS[scenario]))
+        path = tmp_path_factory.mktemp('policies') / f'{scenario}.pt'
+        export_policy(policy, path, policy.metadata())
+        out[scenario] = path
+    return out

@@ -40,21 +40,6 @@ class LinearPolicy:
         return self.scale * rel.sum(axis=1)
 
 
-@pytest.fixture(scope='module')
-def policy_files(tmp_path_factory):
-    """Untrained policy files of both scenarios (seeded), as the training issue's tests make them."""
-    import torch
-    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
-    out = {}
-    for scenario in ('flock2d', 'boids3d'):
-        torch.manual_seed(3)
-        policy = KNODEPolicy(PolicyConfig(scenario, **DEFAULTS[scenario]))
-        path = tmp_path_factory.mktemp('policies') / f'{scenario}.pt'
-        export_policy(policy, path, policy.metadata())
-        out[scenario] = path
-    return out
-
-
 def make_logic(policy=None, robot=0, ids=range(4), mode='lockstep', **kw):
     policy = policy or LinearPolicy()
     return AgentLogic(AgentConfig(robot, list(ids), mode=mode, **kw), policy)
@@ -246,9 +231,9 @@ def test_commands_are_clipped_and_non_finite_policy_output_gives_zero():
     assert np.all(out.value == 0) and broken.counters['non_finite_command'] == 1
 
 
-def test_agent_command_matches_the_core_for_hand_made_neighbours(policy_files):
+def test_agent_command_matches_the_core_for_hand_made_neighbours(untrained_policies):
     from knode_swarm_ros.core import load_policy, neighbour_matrix_single
-    policy = load_policy(policy_files['flock2d'])
+    policy = load_policy(untrained_policies['flock2d'])
     rng = np.random.default_rng(5)
     Z = np.concatenate([rng.uniform(-3, 3, (6, 2)), rng.normal(size=(6, 2))], axis=1)
     for parity in (True, False):
@@ -282,10 +267,10 @@ def _lockstep_swarm(policy, z0, steps, rng, parity=True):
 
 
 @pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
-def test_lockstep_protocol_equals_core_rollout_exactly(policy_files, scenario):
+def test_lockstep_protocol_equals_core_rollout_exactly(untrained_policies, scenario):
     from knode_swarm_ros.core import load_policy
     from knode_swarm_ros.core.rollout import rollout  # not core.rollout: see the report (module shadows function)
-    policy = load_policy(policy_files[scenario])
+    policy = load_policy(untrained_policies[scenario])
     z0, _ = initial_state(scenario, 7, seed=1)
     steps = 40
     got = _lockstep_swarm(policy, z0, steps, np.random.default_rng(0))
@@ -426,13 +411,13 @@ def _swarm_main(argv, capsys):
     return exc.value.code, capsys.readouterr()
 
 
-def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsys, policy_files):
+def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsys, untrained_policies):
     out = str(tmp_path / 'run.npz')
     code, cap = _swarm_main(['--robots', '0', '--record', out], capsys)
     assert code == 2 and '--robots must be >= 1, got 0' in cap.err
     code, cap = _swarm_main(['--policy', str(tmp_path / 'missing.pt'), '--record', out], capsys)
     assert code == 2 and 'missing.pt: no such file' in cap.err
-    code, cap = _swarm_main(['--scenario', 'boids3d', '--policy', str(policy_files['flock2d']), '--record', out],
+    code, cap = _swarm_main(['--scenario', 'boids3d', '--policy', str(untrained_policies['flock2d']), '--record', out],
                             capsys)
     assert code == 2 and 'is for flock2d' in cap.err
     code, cap = _swarm_main(['--record', str(tmp_path / 'run.txt'), '--ground-truth'], capsys)
@@ -447,9 +432,9 @@ def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsy
     assert not os.path.exists(out)
 
 
-def test_launcher_commands_carry_ros_args(tmp_path, policy_files):
+def test_launcher_commands_carry_ros_args(tmp_path, untrained_policies):
     from knode_swarm_ros.nodes import swarm
-    args = swarm.build_parser().parse_args(['--robots', '3', '--policy', str(policy_files['boids3d']),
+    args = swarm.build_parser().parse_args(['--robots', '3', '--policy', str(untrained_policies['boids3d']),
                                             '--record', str(tmp_path / 'r.npz'), '--log-dir', str(tmp_path / 'logs')])
     plan = swarm.plan_run(args)
     assert plan.scenario == 'boids3d' and plan.dt == pytest.approx(1 / 60) and plan.figure.suffix == '.png'

@@ -35,15 +35,9 @@ REPO = Path(__file__).resolve().parents[1]
 SEC = 1_000_000_000
 
 
-@pytest.fixture(scope='module')
-def flock_policy(tmp_path_factory):
-    import torch
-    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
-    torch.manual_seed(4)
-    policy = KNODEPolicy(PolicyConfig('flock2d', **DEFAULTS['flock2d']))
-    path = tmp_path_factory.mktemp('policy') / 'flock2d.pt'
-    export_policy(policy, path, policy.metadata())
-    return path
+@pytest.fixture
+def flock_policy(untrained_policies):
+    return untrained_policies['flock2d']
 
 
 @pytest.fixture

@@ -32,21 +32,6 @@ pytestmark = pytest.mark.ros
 RUN_TIMEOUT = 240
 
 
-@pytest.fixture(scope='module')
-def policies(tmp_path_factory):
-    """Untrained, seeded policy files (the tests do not depend on the shipped ones)."""
-    import torch
-    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
-    out = {}
-    for scenario in ('flock2d', 'boids3d'):
-        torch.manual_seed(7)
-        policy = KNODEPolicy(PolicyConfig(scenario, **DEFAULTS[scenario]))
-        path = tmp_path_factory.mktemp('policies') / f'{scenario}.pt'
-        export_policy(policy, path, policy.metadata())
-        out[scenario] = path
-    return out
-
-
 def _env():
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -129,12 +114,12 @@ def _parity(record, policy_path, steps):
     return float(np.abs(ref - states).max())
 
 
-def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, policies):
+def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, untrained_policies):
     record = tmp_path / 'flock.npz'
-    rc, out = _run(tmp_path, '--policy', policies['flock2d'], '--robots', 10, '--steps', 300, '--seed', 3,
+    rc, out = _run(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 10, '--steps', 300, '--seed', 3,
                    '--record', record)
     assert rc == 0, out
-    diff = _parity(record, policies['flock2d'], 300)
+    diff = _parity(record, untrained_policies['flock2d'], 300)
     assert diff <= 1e-5, f'max state difference {diff}'
     assert 'avd (velocity difference)' in out and 'every process has stopped' in out
     report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
@@ -142,28 +127,28 @@ def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, polici
     _assert_no_strays(tmp_path)
 
 
-def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, policies):
+def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, untrained_policies):
     from knode_swarm_ros.nodes.simulator_logic import initial_state
     z0, _ = initial_state('boids3d', 10, seed=4)
     init = tmp_path / 'init.npz'
     save_trajectories(init, np.stack([z0 + 1.0, z0])[:, None], 1 / 60, 'boids3d')
-    assert load_policy(policies['boids3d']).tau == 1
+    assert load_policy(untrained_policies['boids3d']).tau == 1
     record = tmp_path / 'boids.npz'
-    rc, out = _run(tmp_path, '--policy', policies['boids3d'], '--init', f'{init}:1', '--steps', 300,
+    rc, out = _run(tmp_path, '--policy', untrained_policies['boids3d'], '--init', f'{init}:1', '--steps', 300,
                    '--record', record)
     assert rc == 0, out
     assert np.allclose(load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15)  # heading via quaternion
-    diff = _parity(record, policies['boids3d'], 300)
+    diff = _parity(record, untrained_policies['boids3d'], 300)
     assert diff <= 1e-5, f'max state difference {diff}'
     _assert_no_strays(tmp_path)
 
 
-def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, policies):
+def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_policies):
     from knode_swarm_ros.nodes import swarm
     shm_before = swarm.shm_snapshot()
     record = tmp_path / 'kill.npz'
     steps = 600
-    run = Launcher(tmp_path, '--policy', policies['flock2d'], '--robots', 5, '--steps', steps, '--seed', 1,
+    run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 5, '--steps', steps, '--seed', 1,
                    '--lockstep-timeout', 1.0, '--record', record)
     assert run.wait_for('ready after'), run.output
     victim = _pids(tmp_path)['agent_2']
@@ -202,9 +187,9 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, policies):
     assert not left, f'stale shared-memory files left: {left}'
 
 
-def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_path, policies):
+def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_path, untrained_policies):
     record = tmp_path / 'rt.npz'
-    run = Launcher(tmp_path, '--policy', policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
+    run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
                    '--rate', 20, '--record', record)
     assert run.wait_for('steps/s'), run.output   # the simulator's first progress line: running for a while
     os.killpg(run.proc.pid, signal.SIGINT)       # Ctrl-C in the launcher's terminal
