@@ -99,7 +99,7 @@ def test_any_swarm_size_and_bad_shapes():
 
 @pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
 def test_torch_zoh_step_equals_the_numpy_one(scenario):
-    torch = pytest.importorskip("torch")
+    import torch
     from knode_swarm_ros.core.rollout import zoh_step_torch
 
     spec = get_scenario(scenario)

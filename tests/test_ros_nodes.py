@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+import rclpy  # noqa: E402  (a broken install must fail, not skip)
 
 from geometry_msgs.msg import AccelStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
@@ -188,11 +188,8 @@ def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
 
 
 def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path):
-    from knode_swarm_ros.core.policy_io import PolicyError, shipped_policy_path
-    try:
-        shipped_policy_path('flock2d')
-    except PolicyError as exc:
-        pytest.skip(f'no shipped flock2d policy yet: {exc}')
+    from knode_swarm_ros.core.policy_io import shipped_policy_path
+    assert shipped_policy_path('flock2d').is_file()  # the policy ships: PolicyError if not
     log = tmp_path / 'agent.log'
     with open(log, 'wb') as out:
         proc = subprocess.Popen([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=3',

@@ -7,10 +7,9 @@ import os
 
 import numpy as np
 import pytest
-
-torch = pytest.importorskip("torch")
-pytest.importorskip("torchdiffeq")
-yaml = pytest.importorskip("yaml")
+import torch
+import torchdiffeq  # noqa: F401  (a broken install must fail, not skip)
+import yaml
 
 from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, get_scenario, load_policy, rollout,  # noqa: E402
                                   save_trajectories, zoh_step)

@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("matplotlib")
+import matplotlib  # noqa: F401  (a broken install must fail, not skip)
+import torch
 
 from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, DEFAULTS, export_policy, save_trajectories  # noqa: E402
 from knode_swarm_ros.core.groundtruth import simulate  # noqa: E402
