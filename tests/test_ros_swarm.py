@@ -1,7 +1,7 @@
 """Whole swarms through the real processes: the ``swarm`` launcher, simulator, agents, recorder.
 
-* lockstep parity: flock2d (10 robots, 300 steps, tau 0) and boids3d (tau 1) equal
-  core.rollout from the recorded initial state within 1e-5 (they are in fact bit for bit equal);
+* lockstep parity: flock2d (10 robots, 300 steps, tau 0) equals core.rollout from the recorded
+  initial state bit for bit, boids3d (tau 1) to 1e-14 (headings travel as quaternions);
 * an agent killed mid-run: the others go on, the simulator holds the robot, the launcher
   reports it (exit status 3) and leaves neither processes nor shared-memory files behind;
 * realtime mode records, and Ctrl-C on the launcher stops everything with the file saved;
@@ -120,10 +120,12 @@ def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, untrai
                    '--record', record)
     assert rc == 0, out
     diff = _parity(record, untrained_policies['flock2d'], 300)
-    assert diff <= 1e-5, f'max state difference {diff}'
+    assert diff == 0.0, f'max state difference {diff}'  # bit for bit
     assert 'avd (velocity difference)' in out and 'every process has stopped' in out
     report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
-    assert report['steps_run'] == 300 and report['lost'] == [] and report['counters']['accepted'] >= 3010
+    # 300 steps take 10 x 300 commands; the answers to the final state may come after the
+    # simulator stopped (measured 3009 of 3010 on a loaded machine), so they are not counted.
+    assert report['steps_run'] == 300 and report['lost'] == [] and report['counters']['accepted'] >= 3000
     _assert_no_strays(tmp_path)
 
 
@@ -139,7 +141,8 @@ def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, untrai
     assert rc == 0, out
     assert np.allclose(load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15)  # heading via quaternion
     diff = _parity(record, untrained_policies['boids3d'], 300)
-    assert diff <= 1e-5, f'max state difference {diff}'
+    # Headings reach the recorder as quaternions: a few ulps (measured 5.6e-16), nothing more.
+    assert diff <= 1e-14, f'max state difference {diff}'
     _assert_no_strays(tmp_path)
 
 
