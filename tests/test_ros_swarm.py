@@ -49,6 +49,9 @@ def _run(tmp_path, *args):
     return proc.returncode, proc.stdout + proc.stderr
 
 
+_STEP_LINE = re.compile(r'\bstep (\d+)(?:/\d+)? \(t = .* steps/s')
+
+
 class Launcher:
     """The launcher as a background process whose output lines are collected as they come."""
 
@@ -75,6 +78,15 @@ class Launcher:
             if self.proc.poll() is not None:
                 self.reader.join(timeout=5)
                 return any(text in line for line in self.lines)
+            time.sleep(0.05)  # polling the collected output for a condition
+        return False
+
+    def wait_for_step(self, step, timeout=RUN_TIMEOUT):
+        """Wait for a simulator progress line ``step N...`` with N >= ``step``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            if any(int(m.group(1)) >= step for m in map(_STEP_LINE.search, list(self.lines)) if m):
+                return True
             time.sleep(0.05)  # polling the collected output for a condition
         return False
 
@@ -194,7 +206,9 @@ def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_pa
     record = tmp_path / 'rt.npz'
     run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
                    '--rate', 20, '--record', record)
-    assert run.wait_for('steps/s'), run.output   # the simulator's first progress line: running for a while
+    # Ctrl-C once the simulator reports step 250 (50 published frames at 5 steps a frame), a
+    # condition on the run's own progress rather than on how much wall time has passed.
+    assert run.wait_for_step(250), run.output
     os.killpg(run.proc.pid, signal.SIGINT)       # Ctrl-C in the launcher's terminal
     rc = run.finish()
     out = run.output
