@@ -11,7 +11,7 @@ PYTEST_ARGS ?=
 ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
           AMENT_PREFIX_PATH="$(VENV_PREFIX)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
 
-.PHONY: all venv test demo demo-offline bench clean distclean
+.PHONY: all venv test demo demo-offline bench mutation clean distclean
 
 all: test
 
@@ -32,7 +32,7 @@ $(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setu
 	@touch $@
 
 test: $(VENV)/.installed
-	$(ROS_ENV) $(PY) -m pytest -q tests $(PYTEST_ARGS)
+	$(ROS_ENV) $(PY) -m pytest -q -rs tests $(PYTEST_ARGS)
 
 # The main job: the shipped flock2d policy on 10 robots, one OS process per agent plus the
 # simulator and the recorder (lockstep), then the metrics of the recorded run and a figure.
@@ -49,6 +49,12 @@ bench: $(VENV)/.installed
 	  [ -f "$$f" ] || continue; found=1; echo "== $$f"; \
 	  $(ROS_ENV) PYTHONPATH="$(CURDIR)$${PYTHONPATH:+:$$PYTHONPATH}" $(PY) "$$f"; \
 	done; [ $$found = 1 ] || echo "no benchmarks under bench/"
+
+# Mutation testing (not part of CI; hours on 2 cores, see docs/testing.md): cosmic-ray over
+# the core and the *_logic modules, in a copy under out/mutation. MUTATION_ARGS: --only, --sample.
+mutation: $(VENV)/.installed
+	$(VENV)/bin/python -m pip install -q -r requirements-mutation.txt
+	$(ROS_ENV) nice -n 10 $(PY) tools/mutation.py $(MUTATION_ARGS)
 
 clean:
 	rm -rf build install log .pytest_cache *.egg-info

@@ -40,6 +40,25 @@ def test_wall_distance():
     np.testing.assert_allclose(wall_distance(states)[0], [5.0, 0.5, 0.1])
 
 
+def test_summary_of_two_known_runs():
+    # Run 0: 3 boids in a row 1 apart moving along +x at 3; run 1: 2 apart at 6. Same headings.
+    T, dt = 20, 1 / 60
+    runs = []
+    for gap, v in ((1.0, 3.0), (2.0, 6.0)):
+        runs.append(np.stack([frame([[t * v * dt + i * gap, 0, 0] for i in range(3)]) for t in range(T)]))
+    s = summary(np.stack(runs), dt, modes=3)
+    expect = {"speed_mean": (3.0, 6.0), "speed_p05": (3.0, 6.0), "speed_p95": (3.0, 6.0),
+              "alignment": (1.0, 1.0), "flockmates": (2.0, 4 / 3), "subgroups_final": (1.0, 1.0),
+              "amd": (1.0, 2.0),
+              # every boid is at y = z = 0 with x >= 0: its closest wall is +x, 5 - x away
+              "wall_distance": tuple(np.mean([5 - (t * v * dt + i * g) for t in range(T) for i in range(3)])
+                                     for g, v in ((1.0, 3.0), (2.0, 6.0)))}
+    for key, (a, b) in expect.items():
+        assert s[key]["mean"] == pytest.approx((a + b) / 2, rel=1e-9), key
+        assert s[key]["std"] == pytest.approx(abs(a - b) / 2, rel=1e-9, abs=1e-12), key
+    assert s["runs"] == 2 and sum(s["pod_energy"]) == pytest.approx(1.0)
+
+
 def test_summary_has_every_statistic():
     rng = np.random.default_rng(0)
     states = np.concatenate([rng.uniform(-3, 3, (2, 60, 6, 3)), np.tile([1.0, 0, 0], (2, 60, 6, 1))], axis=-1)

@@ -171,7 +171,7 @@ def test_save_runs_writes_a_unity_equivalent_test_set(tmp_path):
 
 
 def test_unity_policies_cli(tmp_path):
-    torch = pytest.importorskip("torch")
+    import torch
     from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy, save_trajectories
     from training import unity_policies
     torch.manual_seed(0)

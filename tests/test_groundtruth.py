@@ -89,7 +89,7 @@ def test_three_robot_configuration_by_hand():
 
 
 def test_potential_force_matches_autograd():
-    torch = pytest.importorskip("torch")
+    import torch
     rng = np.random.default_rng(5)
     z = T.initial_states(rng, 1, 6)[0]
     p = torch.tensor(z[:, :2], dtype=torch.float64, requires_grad=True)

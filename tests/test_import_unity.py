@@ -1,13 +1,12 @@
 """Unity boids importer on small hand-written files, and on a real recording."""
+import lzma
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from knode_swarm_ros.core import load_trajectories
-from training.import_unity import main, read_recording
-
-UNITY = Path(__file__).resolve().parents[2] / "shared" / "data" / "unity_boids"
+from training.import_unity import UNITY_DIR, main, read_recording, shipped_recordings
 
 
 def line(boids):
@@ -87,9 +86,25 @@ def test_too_short_and_missing_files(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not UNITY.is_dir(), reason="the shared Unity recordings are not next to this checkout")
+def test_the_six_recordings_ship_inside_the_repository():
+    paths = shipped_recordings()
+    assert [p.name for p in paths] == [f"simulation_data{i}_7decimal{'_one_group' if i == 4 else ''}.txt.xz"
+                                       for i in range(6)]
+    assert all(p.parent == UNITY_DIR and UNITY_DIR.parent == Path(__file__).resolve().parents[1] / "training"
+               for p in paths)
+    assert (UNITY_DIR / "README.md").is_file() and "MIT" in (UNITY_DIR / "LICENSE").read_text()
+
+
+def test_compressed_and_plain_recordings_read_the_same(tmp_path):
+    frames, _ = good_frames(T=14, n=3)
+    plain = write(tmp_path, "r.txt", frames)
+    packed = tmp_path / "r.txt.xz"
+    packed.write_bytes(lzma.compress(plain.read_bytes()))
+    np.testing.assert_array_equal(read_recording(packed), read_recording(plain))
+
+
 def test_real_recording_has_the_documented_speeds():
-    states = read_recording(UNITY / "simulation_data0_7decimal.txt")
+    states = read_recording(UNITY_DIR / "simulation_data0_7decimal.txt.xz")
     assert states.shape == (2051, 10, 6)
     speed = np.linalg.norm(np.diff(states[:, :, :3], axis=0), axis=-1) * 60
     # README: with dt = 1/60 speeds fall between 5.0 and about 8.1 (frame-time jitter aside).

@@ -63,9 +63,46 @@ def test_no_force_beyond_d0_or_without_neighbours():
     assert torch.count_nonzero(collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0)) == 0
 
 
-def test_coincident_robots_give_a_finite_push():
+def test_coincident_robots_get_the_floored_push_along_plus_x():
+    # r = 0 has no direction: the documented choice is +x with the floored magnitude
+    # lambda / min_distance^3 (issue 18: it used to be exactly zero).
     Y, mask = matrices([1.0, 1.0], [[1.0, 1.0]], [1, 1])
-    assert torch.all(torch.isfinite(collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0)))
+    force = collision_avoidance(Y, mask, 2, torch.tensor(2.0), d0=1.0, min_distance=0.01)
+    torch.testing.assert_close(force, torch.tensor([[2.0 / 0.01 ** 3, 0.0]]))
+
+
+def test_closer_than_the_floor_keeps_the_direction_and_the_floored_magnitude():
+    # d = 0.005 < min_distance = 0.01, neighbour straight below: push straight up with
+    # lambda / min_distance^3, not the shrinking lambda * r / min_distance^4.
+    Y, mask = matrices([0.0, 0.0], [[0.0, -0.005]], [1, 1])
+    force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0, min_distance=0.01)
+    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01 ** 3]]))
+    # Continuous at the floor: exactly at min_distance both formulas agree.
+    Y, mask = matrices([0.0, 0.0], [[0.0, -0.01]], [1, 1])
+    force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0, min_distance=0.01)
+    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01 ** 3]]))
+
+
+def test_coincident_robots_have_finite_gradients():
+    Y, mask = matrices([1.0, 1.0], [[1.0, 1.0], [1.5, 1.0]], [1, 1, 1])
+    Y.requires_grad_(True)
+    phi = torch.tensor(1.3, requires_grad=True)
+    collision_avoidance(Y, mask, 2, phi * phi, d0=1.0).sum().backward()
+    assert torch.isfinite(Y.grad).all() and torch.isfinite(phi.grad).all()
+    torch.testing.assert_close(phi.grad, torch.tensor(2 * 1.3 / 1e-3 ** 3))
+
+
+def test_collision_range_includes_d0_exactly():
+    # Neighbour at exactly d0 = 1: U is defined for d <= d0, so the push is lambda r / d^4 = -x.
+    Y, mask = matrices([0.0, 0.0], [[1.0, 0.0]], [1, 1])
+    force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0)
+    torch.testing.assert_close(force, torch.tensor([[-1.0, 0.0]]))
+
+
+def test_wall_range_includes_d0_exactly():
+    # Exactly d0 = 1 from the +x face and from the -y face: lambda / d0^3 = 1 inwards.
+    f = wall_avoidance(torch.tensor([[4.0, -4.0, 0.0]]), 5.0, torch.tensor(1.0), 1.0)
+    torch.testing.assert_close(f, torch.tensor([[-1.0, 1.0, 0.0]]))
 
 
 def test_wall_force_is_minus_grad_of_potential_inside_the_box():

@@ -41,6 +41,20 @@ def test_ties_are_broken_by_lower_id():
     np.testing.assert_array_equal(Y[0, 1:, 2], [1, 2, 3])  # robots 1, 2, 3 in id order
 
 
+def test_many_equidistant_robots_keep_id_order():
+    # 16 robots exactly 5 from robot 0 (integer points of the circle of radius 5, shuffled
+    # ids): an unstable sort keeps id order for 4 ties but not for this many (issue 18).
+    pts = [(5, 0), (-5, 0), (0, 5), (0, -5), (3, 4), (-3, 4), (3, -4), (-3, -4),
+           (4, 3), (-4, 3), (4, -3), (-4, -3)]
+    pts = pts + pts[:4]  # a few robots on the same spot: still distance 5, still id order
+    order = np.random.default_rng(0).permutation(len(pts))
+    z = flock((0, 0, 0, 0), *[(px, py, i + 1, 0) for i, (px, py) in enumerate(pts[j] for j in order)])
+    for k in (6, 13, 17):
+        Y, mask = neighbour_matrix(z, z, 2, 5.0, k)
+        np.testing.assert_array_equal(Y[0, 1:, 2], np.arange(1, k))  # robots 1..k-1 in id order
+        np.testing.assert_array_equal(neighbour_matrix_single(0, z[0], z, 2, 5.0, k)[0], Y[0])
+
+
 def test_k_equal_one_is_the_robot_alone():
     z = flock((0, 0, 5, 6), (0.5, 0, 0, 0))
     Y, mask = neighbour_matrix(z, z, 2, 5.0, 1)

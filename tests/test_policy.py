@@ -68,6 +68,17 @@ def test_relative_frame_is_translation_invariant_for_flock2d():
     assert not torch.allclose(absolute(shifted, mask), absolute(Y, mask), atol=1e-3)
 
 
+def test_translation_invariance_holds_for_rows_with_missing_neighbours():
+    # 3 robots, k = 6: every matrix has padded rows. The mask must hide them from the
+    # relative features, or the command depends on where the swarm is (issue 18).
+    policy = make_policy()
+    Y, mask = batch(n=3, seed=4)
+    assert (mask.sum(-1) < 6).all() and (mask.sum(-1) > 1).any()
+    shifted = Y.clone()
+    shifted[:, :, :2] += torch.tensor([30.0, -20.0]) * mask[..., None]
+    torch.testing.assert_close(policy(shifted, mask), policy(Y, mask), atol=2e-4, rtol=1e-4)
+
+
 def test_relative_features_tell_a_missing_row_from_a_coincident_neighbour():
     policy = make_policy(collision=False)
     Y = torch.zeros(2, 6, 4)
@@ -138,6 +149,19 @@ def test_invalid_json(tmp_path, good):
         warnings.simplefilter("ignore")
         torch.jit.save(torch.jit.script(good[0]), str(path), _extra_files={"knode.json": "{not json"})
     with pytest.raises(PolicyError, match="not valid JSON"):
+        load_policy(path)
+
+
+# The required keys of DESIGN.md, spelt out here (not imported) so that dropping one from
+# the loader's list is caught.
+@pytest.mark.parametrize("key", ["format", "scenario", "state_dim", "command_dim", "command", "k",
+                                 "d_cr", "tau", "dt", "state_layout"])
+def test_every_missing_required_key_is_named(tmp_path, good, key):
+    meta = good[0].metadata()
+    del meta[key]
+    path = tmp_path / "missing.pt"
+    save_scripted(good[0], path, meta)
+    with pytest.raises(PolicyError, match=f"lacks required key.*\\b{key}\\b"):
         load_policy(path)
 
 

@@ -83,11 +83,22 @@ def test_batched_rollout_equals_per_robot_loop_with_delay(tau):
         np.testing.assert_allclose(out[s], ref, rtol=0, atol=1e-12)
 
 
-def test_delay_changes_the_result():
-    z0 = np.random.default_rng(4).normal(scale=2.0, size=(6, 4))
-    a = rollout(cohesion_policy, z0, 20, "flock2d", 3.0, 4, 0, 0.05)
-    b = rollout(cohesion_policy, z0, 20, "flock2d", 3.0, 4, 5, 0.05)
-    assert np.abs(a - b).max() > 1e-3
+def test_delay_uses_the_frame_tau_steps_back_by_hand():
+    # Two robots 1 apart, cohesion towards the midpoint of own position and the other's
+    # position tau = 5 steps back (the initial frame before that), written out by hand.
+    z0 = np.array([[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.5]])
+    tau, dt, steps = 5, 0.05, 12
+    out = rollout(cohesion_policy, z0, steps, "flock2d", 3.0, 4, tau, dt)
+    frames = [z0]
+    for t in range(steps):
+        z, zd = frames[t], frames[max(t - tau, 0)]
+        c = np.stack([(z[i, :2] + zd[1 - i, :2]) / 2 - z[i, :2] - 0.5 * z[i, 2:] for i in (0, 1)])
+        frames.append(np.concatenate([z[:, :2] + z[:, 2:] * dt + 0.5 * c * dt * dt, z[:, 2:] + c * dt], axis=1))
+    np.testing.assert_allclose(out, np.stack(frames), rtol=0, atol=1e-14)
+    # Without the delay the first two frames agree and the third does not (step 1 sees frame 1).
+    undelayed = rollout(cohesion_policy, z0, steps, "flock2d", 3.0, 4, 0, dt)
+    np.testing.assert_array_equal(undelayed[:2], out[:2])
+    assert np.abs(undelayed[2] - out[2]).max() > 1e-6
 
 
 def test_any_swarm_size_and_bad_shapes():
@@ -99,7 +110,7 @@ def test_any_swarm_size_and_bad_shapes():
 
 @pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
 def test_torch_zoh_step_equals_the_numpy_one(scenario):
-    torch = pytest.importorskip("torch")
+    import torch
     from knode_swarm_ros.core.rollout import zoh_step_torch
 
     spec = get_scenario(scenario)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+import torch
 
 from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, export_policy, load_policy, load_trajectories,  # noqa: E402
                                   rollout, save_trajectories)

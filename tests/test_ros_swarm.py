@@ -1,7 +1,7 @@
 """Whole swarms through the real processes: the ``swarm`` launcher, simulator, agents, recorder.
 
-* lockstep parity: flock2d (10 robots, 300 steps, tau 0) and boids3d (tau 1) equal
-  core.rollout from the recorded initial state within 1e-5 (they are in fact bit for bit equal);
+* lockstep parity: flock2d (10 robots, 300 steps, tau 0) equals core.rollout from the recorded
+  initial state bit for bit, boids3d (tau 1) to 1e-14 (headings travel as quaternions);
 * an agent killed mid-run: the others go on, the simulator holds the robot, the launcher
   reports it (exit status 3) and leaves neither processes nor shared-memory files behind;
 * realtime mode records, and Ctrl-C on the launcher stops everything with the file saved;
@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
 from knode_swarm_ros.core import load_policy, load_trajectories, save_trajectories  # noqa: E402
 from knode_swarm_ros.core.rollout import rollout  # noqa: E402  (module path: see docs/ros.md, "Notes")
@@ -47,6 +47,9 @@ def _cmd(tmp_path, *args):
 def _run(tmp_path, *args):
     proc = subprocess.run(_cmd(tmp_path, *args), env=_env(), capture_output=True, text=True, timeout=RUN_TIMEOUT)
     return proc.returncode, proc.stdout + proc.stderr
+
+
+_STEP_LINE = re.compile(r'\bstep (\d+)(?:/\d+)? \(t = .* steps/s')
 
 
 class Launcher:
@@ -75,6 +78,15 @@ class Launcher:
             if self.proc.poll() is not None:
                 self.reader.join(timeout=5)
                 return any(text in line for line in self.lines)
+            time.sleep(0.05)  # polling the collected output for a condition
+        return False
+
+    def wait_for_step(self, step, timeout=RUN_TIMEOUT):
+        """Wait for a simulator progress line ``step N...`` with N >= ``step``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            if any(int(m.group(1)) >= step for m in map(_STEP_LINE.search, list(self.lines)) if m):
+                return True
             time.sleep(0.05)  # polling the collected output for a condition
         return False
 
@@ -120,10 +132,12 @@ def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, untrai
                    '--record', record)
     assert rc == 0, out
     diff = _parity(record, untrained_policies['flock2d'], 300)
-    assert diff <= 1e-5, f'max state difference {diff}'
+    assert diff == 0.0, f'max state difference {diff}'  # bit for bit
     assert 'avd (velocity difference)' in out and 'every process has stopped' in out
     report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
-    assert report['steps_run'] == 300 and report['lost'] == [] and report['counters']['accepted'] >= 3010
+    # 300 steps take 10 x 300 commands; the answers to the final state may come after the
+    # simulator stopped (measured 3009 of 3010 on a loaded machine), so they are not counted.
+    assert report['steps_run'] == 300 and report['lost'] == [] and report['counters']['accepted'] >= 3000
     _assert_no_strays(tmp_path)
 
 
@@ -139,7 +153,8 @@ def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, untrai
     assert rc == 0, out
     assert np.allclose(load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15)  # heading via quaternion
     diff = _parity(record, untrained_policies['boids3d'], 300)
-    assert diff <= 1e-5, f'max state difference {diff}'
+    # Headings reach the recorder as quaternions: a few ulps (measured 5.6e-16), nothing more.
+    assert diff <= 1e-14, f'max state difference {diff}'
     _assert_no_strays(tmp_path)
 
 
@@ -191,7 +206,9 @@ def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_pa
     record = tmp_path / 'rt.npz'
     run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
                    '--rate', 20, '--record', record)
-    assert run.wait_for('steps/s'), run.output   # the simulator's first progress line: running for a while
+    # Ctrl-C once the simulator reports step 250 (50 published frames at 5 steps a frame), a
+    # condition on the run's own progress rather than on how much wall time has passed.
+    assert run.wait_for_step(250), run.output
     os.killpg(run.proc.pid, signal.SIGINT)       # Ctrl-C in the launcher's terminal
     rc = run.finish()
     out = run.output

@@ -1,6 +1,6 @@
 """Compare our numpy boids (``published`` preset) with the Unity recordings of the paper.
 
-    python -m training.compare_unity --unity ../shared/data/unity_boids/*.txt --out out/unity_compare
+    python -m training.compare_unity --unity training/unity_boids/*.txt.xz --out out/unity_compare
     python -m training.compare_unity --unity ... --out DIR --runs 30 --seed 0 --figures docs/figures
     python -m training.compare_unity --unity ... --out DIR --save-runs data/unity_equivalent.npz
 
@@ -562,7 +562,7 @@ def compare(unity_files: Sequence[str], out: str, runs: int = 30, seed: int = 0,
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.compare_unity", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--unity", nargs="+", required=True, help="Unity recordings (simulation_data*.txt)")
+    ap.add_argument("--unity", nargs="+", required=True, help="Unity recordings (simulation_data*.txt or .txt.xz)")
     ap.add_argument("--out", required=True, help="output directory (results.json, summary.md)")
     ap.add_argument("--runs", type=int, default=30, help="runs of our boids per group (default 30)")
     ap.add_argument("--seed", type=int, default=0, help="seed of our spawns (default 0)")

@@ -10,11 +10,16 @@ Recordings differ in length. By default all recordings are trimmed to the shorte
 one and written as one file (``[recordings, T, n, 6]``); ``--separate`` writes one file
 per recording instead (``OUT`` gets a ``_<index>`` suffix), keeping every frame.
 
-    python -m training.import_unity ../shared/data/unity_boids/*.txt --out data/unity.npz
+    python -m training.import_unity training/unity_boids/*.txt.xz --out data/unity.npz
+
+The six recordings the project uses ship xz-compressed in ``training/unity_boids/``
+(:data:`UNITY_DIR`, :func:`shipped_recordings`); ``read_recording`` reads ``.txt`` and
+``.txt.xz`` alike.
 """
 from __future__ import annotations
 
 import argparse
+import lzma
 import re
 import sys
 from pathlib import Path
@@ -24,7 +29,10 @@ import numpy as np
 
 from knode_swarm_ros.core import save_trajectories
 
-__all__ = ["read_recording", "import_recordings", "UnityFormatError", "main"]
+__all__ = ["read_recording", "import_recordings", "shipped_recordings", "UNITY_DIR", "UnityFormatError", "main"]
+
+#: The Unity recordings shipped with the repository (MIT, see the README there).
+UNITY_DIR = Path(__file__).resolve().parent / "unity_boids"
 
 _TUPLE = re.compile(r"\(([^()]*)\)")
 # Headings are stored with 7 decimals, so their norm is 1 only up to rounding.
@@ -73,7 +81,8 @@ def read_recording(path, boids: Optional[int] = None, discard: int = 10) -> np.n
     if not path.is_file():
         raise UnityFormatError(f"{path}: no such file")
     frames: List[np.ndarray] = []
-    with open(path, encoding="utf-8") as fh:
+    opener = lzma.open if path.suffix == ".xz" else open
+    with opener(path, "rt", encoding="utf-8") as fh:
         for number, line in enumerate(fh, start=1):
             if not line.strip():
                 continue
@@ -86,6 +95,14 @@ def read_recording(path, boids: Optional[int] = None, discard: int = 10) -> np.n
     # Renormalise away the 7-decimal rounding so headings are unit to float precision.
     states[..., 3:] /= np.linalg.norm(states[..., 3:], axis=-1, keepdims=True)
     return states
+
+
+def shipped_recordings() -> List[Path]:
+    """The shipped recordings ``simulation_data{0..5}_*.txt.xz``, in recording order."""
+    paths = sorted(UNITY_DIR.glob("simulation_data*.txt.xz"))
+    if not paths:
+        raise UnityFormatError(f"{UNITY_DIR}: no simulation_data*.txt.xz recordings")
+    return paths
 
 
 def import_recordings(paths: Sequence, out, dt: float = 1.0 / 60.0, discard: int = 10,
@@ -117,7 +134,7 @@ def import_recordings(paths: Sequence, out, dt: float = 1.0 / 60.0, discard: int
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.import_unity", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("files", nargs="+", help="Unity recordings (simulation_data*.txt)")
+    ap.add_argument("files", nargs="+", help="Unity recordings (simulation_data*.txt or .txt.xz)")
     ap.add_argument("--out", required=True, help="output trajectory file (.npz)")
     ap.add_argument("--dt", type=float, default=1.0 / 60.0, help="frame time in seconds (default 1/60)")
     ap.add_argument("--discard", type=int, default=10, help="leading frames dropped (default 10)")

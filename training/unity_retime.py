@@ -1,6 +1,6 @@
 """Resample Unity recordings onto a uniform 1/60 s time grid, using their estimated frame times.
 
-    python -m training.unity_retime ../shared/data/unity_boids/simulation_data{0,1,2}_*.txt --out data/unity_s2_retimed.npz
+    python -m training.unity_retime training/unity_boids/simulation_data{0,1,2}_*.txt.xz --out data/unity_s2_retimed.npz
 
 Unity steps its boids with the variable ``Time.deltaTime`` (median exactly 1/60 s, about a
 quarter of the frames 1-5 % longer, a few hitches of 2.6/60 s); the recordings hold no time.

@@ -16,7 +16,12 @@ __all__ = ["AvoidanceGain", "collision_avoidance", "wall_avoidance", "collision_
            "wall_potential", "MIN_DISTANCE"]
 
 # Distances are floored at ``min_distance`` (default MIN_DISTANCE) so that two robots on top
-# of each other get a huge but finite push (the policy's saturation bounds it), not inf/NaN.
+# of each other get a huge but finite push (the policy's saturation bounds it), not inf/NaN:
+# closer than min_distance the collision push is lambda / min_distance^3 along r / |r|, and for
+# robots exactly on top of each other (r = 0) along +x, the first position axis. The neighbour
+# matrix carries no ids, so nothing tells two coincident robots with equal states apart: both
+# get the same deterministic push (it is bounded and never silently zero; the commands of
+# different neighbourhoods or velocities then separate them).
 # TorchScript cannot read module globals, hence the literal defaults below.
 MIN_DISTANCE = 1e-3
 
@@ -58,14 +63,24 @@ def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor
         d0: range of the potential; no force beyond it.
 
     Returns:
-        ``[B, p]`` force lambda * r / d^4 (zero without an active neighbour within d0).
+        ``[B, p]`` force lambda * r / d^4 (zero without an active neighbour within d0;
+        closer than ``min_distance``: lambda / min_distance^3 along r / |r|, or along +x for r = 0).
     """
     if Y.shape[1] < 2:
         return torch.zeros(Y.shape[0], position_dim, dtype=Y.dtype, device=Y.device)
     r, dist = _closest_active(Y, mask, position_dim)
     near = (dist <= d0).unsqueeze(-1)
     d = dist.clamp(min=min_distance).masked_fill(~near.squeeze(-1), 1.0).unsqueeze(-1)
-    return torch.where(near, gain * r / d ** 4, torch.zeros_like(r))
+    force = gain * r / d ** 4
+    # Inside the floor: the floored magnitude along r / |r|, or along +x when r = 0 (module
+    # comment). The safe divisor keeps autograd free of 0/0 in the branch not taken.
+    axis = torch.zeros_like(r)
+    axis[:, 0] = 1.0
+    apart = (dist > 0).unsqueeze(-1)
+    unit = torch.where(apart, r / torch.where(apart, dist.unsqueeze(-1), torch.ones_like(d)), axis)
+    inside = (dist < min_distance).unsqueeze(-1)
+    force = torch.where(inside, gain * unit / (min_distance ** 3), force)
+    return torch.where(near, force, torch.zeros_like(r))
 
 
 def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3) -> Tensor:

@@ -1,0 +1,95 @@
+"""AgentLogic at its edges (issue 18): timeouts at exactly their limit, and an agent that
+joins a run already under way.
+
+Each test here fails on a mutation that the broader tests in test_nodes_logic.py let
+through (a `<` turned into `<=`, the first-step clamp of the delayed step removed).
+"""
+import numpy as np
+
+from knode_swarm_ros.core import neighbour_matrix_single
+from knode_swarm_ros.core.scenarios import get_scenario
+from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.nodes.common import stamp_ns
+
+SEC = 1_000_000_000
+
+
+class SumPolicy:
+    """u = sum of the masked neighbour offsets (numpy stand-in for a policy file)."""
+
+    def __init__(self, tau=0, k=4):
+        spec = get_scenario('flock2d')
+        self.scenario, self.k, self.d_cr, self.tau, self.dt = 'flock2d', k, 50.0, tau, spec.dt
+        self.command_limit = None
+        self.calls = []
+
+    def __call__(self, Y, mask):
+        self.calls.append((np.array(Y), np.array(mask)))
+        return ((Y[..., 1:, :2] - Y[..., :1, :2]) * mask[..., 1:, None]).sum(axis=-2)
+
+
+def logic_for(policy, robot=0, mode='lockstep', **kw):
+    return AgentLogic(AgentConfig(robot, [0, 1, 2, 3], mode=mode, **kw), policy)
+
+
+def z(px, py=0.0):
+    return np.array([px, py, 0.0, 0.0])
+
+
+def test_a_state_exactly_state_timeout_old_or_future_tolerance_ahead_is_accepted():
+    logic = logic_for(SumPolicy(), state_timeout=0.5, future_tolerance=0.25)
+    now = 10 * SEC
+    assert logic.receive(1, now - SEC // 2, z(1), now) == 'accepted'
+    assert logic.receive(1, now - SEC // 2 - 1, z(1), now) == 'too_old'
+    assert logic.receive(2, now + SEC // 4, z(2), now) == 'accepted'
+    assert logic.receive(2, now + SEC // 4 + 1, z(2), now) == 'too_future'
+    assert logic.counters['too_old'] == 1 and logic.counters['too_future'] == 1
+
+
+def test_lockstep_gives_up_on_a_silent_peer_at_exactly_state_timeout():
+    logic = logic_for(SumPolicy(), state_timeout=0.5)
+    for r in (0, 1, 2):
+        logic.receive(r, 0, z(r), wall=10.0)
+    assert logic.lockstep_poll(10.499) is None
+    cmd = logic.lockstep_poll(10.5)  # 10.5 - 10.0 == 0.5 exactly in binary floating point
+    assert cmd is not None and cmd.step == 0 and cmd.neighbours == 2
+    assert logic.status()['gone'] == [3]
+
+
+def test_realtime_own_state_exactly_state_timeout_old_still_gives_a_command():
+    logic = logic_for(SumPolicy(), mode='realtime', state_timeout=0.5)
+    for r in range(4):
+        logic.receive(r, 1 * SEC, z(r), 1 * SEC)
+    cmd = logic.tick(1 * SEC + SEC // 2)
+    assert not cmd.stop and cmd.neighbours == 3
+    np.testing.assert_array_equal(cmd.value, [1 + 2 + 3, 0.0])
+    assert logic.tick(1 * SEC + SEC // 2 + 1).stop
+
+
+def test_realtime_neighbour_exactly_state_timeout_silent_still_counts():
+    logic = logic_for(SumPolicy(), mode='realtime', state_timeout=0.5)
+    for r in range(3):
+        logic.receive(r, 2 * SEC, z(r), 2 * SEC)
+    logic.receive(3, 2 * SEC - SEC // 2, z(3), 2 * SEC)  # exactly state_timeout before own
+    assert logic.tick(2 * SEC).neighbours == 3
+    assert logic.tick(2 * SEC + 1).neighbours == 2       # one ns later: silent too long
+
+
+def test_an_agent_joining_mid_run_with_delay_does_not_wait_for_steps_before_its_first():
+    # The swarm is at step 100 when robot 0 starts (or restarts), tau = 2: it never hears the
+    # steps before 100, so its first commands use the earliest states it has (as the offline
+    # rollout does for t < tau) and come at once, without waiting state_timeout for step 98.
+    policy = SumPolicy(tau=2)
+    logic = logic_for(policy, state_timeout=0.5)
+    dt = policy.dt
+    states = {s: {r: z(r + 0.01 * s, 0.1 * r) for r in range(4)} for s in range(100, 106)}
+    for s in range(100, 106):
+        for r in (3, 1, 2, 0):
+            logic.receive(r, stamp_ns(s, dt), states[s][r], wall=0.0)
+        cmd = logic.lockstep_poll(0.0)
+        assert cmd is not None and cmd.step == s and cmd.neighbours == 3, s
+        need = max(s - 2, 100)
+        Z = np.stack([states[need][r] for r in range(4)])
+        Y, mask = neighbour_matrix_single(0, states[s][0], Z, 2, policy.d_cr, policy.k)
+        np.testing.assert_array_equal(policy.calls[-1][0][0], Y)
+    assert logic.counters['gave_up'] == 0 and logic.status()['gone'] == []
