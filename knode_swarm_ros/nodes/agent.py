@@ -201,7 +201,8 @@ class AgentNode(Node):
             if cmd.stop:
                 own = self.logic.newest_ns.get(self.logic.me, 0)
                 self._throttled('stale', f'own state is stale ({(now - own) * 1e-9:.3f} s old, timeout '
-                                f'{self.logic.config.state_timeout:g} s): publishing a zero command (stop)',
+                                f'{self.logic.config.state_timeout:g} s): publishing a stop command '
+                                '(zero velocity, or a brake to rest)',
                                 warn=True)
             self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
         self._log_events()

@@ -221,7 +221,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
            'ground_truth': gt, 'real_time_factor': float(a.real_time_factor), 'publish_rate': float(a.rate),
            'command_timeout': max(0.5, 3.0 / a.rate), 'lockstep_timeout': float(a.lockstep_timeout),
            'startup_timeout': float(a.startup_timeout), 'wait_for_agents': not gt, 'wait_for_recorder': True,
-           'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json')}
+           'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json'),
+           'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0)}
     rec = {'scenario': plan.scenario, 'robots': plan.robots, 'output': str(plan.record), 'dt': float(plan.dt),
            'bag': os.path.abspath(a.bag) if a.bag else '', 'use_sim_time': True}
     python = [sys.executable, '-m']
