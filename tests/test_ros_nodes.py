@@ -5,7 +5,6 @@ Y_i, the recorder's file what was published. Waiting is always a polled conditio
 deadline, never a fixed sleep.
 """
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -41,9 +40,9 @@ def flock_policy(untrained_policies):
 
 
 @pytest.fixture
-def ros(monkeypatch):
-    """An rclpy context of its own on a random domain, localhost only; shut down afterwards."""
-    domain = random.randint(30, 101)
+def ros(monkeypatch, ros_domain_id):
+    """An rclpy context of its own on a claimed domain, localhost only; shut down afterwards."""
+    domain = ros_domain_id
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     context = rclpy.Context()
@@ -172,7 +171,7 @@ def _env(domain):
 
 
 @pytest.mark.parametrize('case', ['missing', 'corrupt', 'bad_parameter'])
-def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
+def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case, ros_domain_id):
     if case == 'missing':
         args, expect = ['-p', f'policy:={tmp_path}/nope.pt'], 'nope.pt: no such file'
     elif case == 'corrupt':
@@ -182,12 +181,12 @@ def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
     else:
         args, expect = ['-p', 'control_rate:=-5.0'], "parameter 'control_rate' = -5.0 is out of range"
     proc = subprocess.run([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=0', *args],
-                          env=_env(random.randint(30, 101)), capture_output=True, text=True, timeout=120)
+                          env=_env(ros_domain_id), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert expect in proc.stderr and 'Traceback' not in proc.stderr
 
 
-def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path):
+def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path, ros_domain_id):
     from knode_swarm_ros.core.policy_io import PolicyError, shipped_policy_path
     try:
         shipped_policy_path('flock2d')
@@ -197,7 +196,7 @@ def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path)
     with open(log, 'wb') as out:
         proc = subprocess.Popen([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=3',
                                  '--params-file', str(REPO / 'config' / 'agent_flock2d.yaml')],
-                                env=_env(random.randint(30, 101)), stdout=out, stderr=subprocess.STDOUT,
+                                env=_env(ros_domain_id), stdout=out, stderr=subprocess.STDOUT,
                                 start_new_session=True)
     try:
         deadline = time.monotonic() + 90

@@ -28,7 +28,6 @@ import argparse
 import fcntl
 import json
 import os
-import random
 import re
 import selectors
 import shutil
@@ -92,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='agents evaluate a batch of 1 (faster; no bit-for-bit parity with core.rollout)')
     p.add_argument('--on-agent-exit', choices=('continue', 'stop'), default='continue',
                    help='when an agent process dies: go on without it (default) or stop the run')
-    p.add_argument('--domain-id', type=int, help=f'ROS_DOMAIN_ID (default: random in {DOMAIN_RANGE[0]}..'
+    p.add_argument('--domain-id', type=int, help=f'ROS_DOMAIN_ID (default: a free one, claimed, in {DOMAIN_RANGE[0]}..'
                    f'{DOMAIN_RANGE[1]})')
     p.add_argument('--figure', metavar='PNG', help='figure path (default: the recording with .png)')
     p.add_argument('--no-figure', action='store_true', help='do not draw a figure')
@@ -121,6 +120,7 @@ class Plan:
     domain_id: int
     args: argparse.Namespace
     policy_meta: Dict = field(default_factory=dict)
+    domain_claim: object = None  # held for the run (domains.DomainClaim) when the domain was drawn
 
 
 def plan_run(args: argparse.Namespace) -> Plan:
@@ -185,7 +185,14 @@ def plan_run(args: argparse.Namespace) -> Plan:
         if args.variant not in groundtruth.presets(scenario):
             raise ConfigError(f'--variant {args.variant!r}: known {scenario} variants are '
                               f"{', '.join(groundtruth.presets(scenario))}")
-    domain = args.domain_id if args.domain_id is not None else random.randint(*DOMAIN_RANGE)
+    claim = None
+    if args.domain_id is None:  # a free one: another swarm on this machine may hold one
+        from .domains import claim_domain
+        try:
+            claim = claim_domain(range(DOMAIN_RANGE[0], DOMAIN_RANGE[1] + 1))
+        except RuntimeError as exc:
+            raise ConfigError(f'{exc}; pass --domain-id') from None
+    domain = args.domain_id if claim is None else claim.domain_id
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain-id must be in 0..232, got {domain}')
     figure = None if args.no_figure else Path(args.figure).resolve() if args.figure else record.with_suffix('.png')
@@ -195,7 +202,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
     else:
         run_dir, temporary = Path(tempfile.mkdtemp(prefix='knode_swarm_')), True
     return Plan(scenario, robots, args.steps, args.mode, dt, d_cr, policy_path, record, figure, run_dir,
-                temporary, domain, args, meta)
+                temporary, domain, args, meta, claim)
 
 
 # --- parameter files -------------------------------------------------------------------
