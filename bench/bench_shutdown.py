@@ -53,12 +53,17 @@ SIM_ARGS = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0',
             '-p', 'publish_rate:=20.0']
 
 
-def _leftovers(before: set):
+def _leftovers(before: set, ports: bool = True):
     """FastDDS files that appeared since ``before`` and that no live process holds (the rule of
-    swarm.shm_cleanup: a segment or port whose lock file is unlocked or gone). Another user's
-    process killed in the same window would count too: run on a quiet machine to be sure."""
+    swarm.shm_cleanup: a segment or port whose lock file is unlocked or gone). With ``ports``
+    False, port files are left out: a port is shared with the live peers (the traffic simulator
+    keeps the port it sent to; the next participant reuses it), so only the end of a series,
+    after every peer has gone, can tell a leaked port. Another user's process killed in the same
+    window would count too: run on a quiet machine to be sure."""
     left = []
     for name in sorted(swarm.shm_snapshot() - before):
+        if not ports and 'fastrtps_port' in name:
+            continue
         base = name[4:-6] if name.startswith('sem.') and name.endswith('_mutex') else \
             name[:-3] if name.endswith(('_el', '_sl')) else name
         locks = [swarm.SHM_DIR / f'{base}{tail}' for tail in ('_el', '_sl')]
@@ -90,7 +95,7 @@ def one_stop(name, args, env, domain, sig, tmp: Path, rng):
     time.sleep(0.2)  # let a dying participant's files go
     text = log_path.read_text(errors='replace')
     note = text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
-    return {'rc': rc, 'stop_s': stop_s, 'left': _leftovers(before), 'note': note}
+    return {'rc': rc, 'stop_s': stop_s, 'left': _leftovers(before, ports=False), 'note': note}
 
 
 def main(argv=None):
@@ -111,7 +116,8 @@ def main(argv=None):
     policy_path = tmp / 'flock2d.pt'
     export_policy(policy, policy_path, policy.metadata())
     print(f'# bench_shutdown {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, '
-          f'load {os.getloadavg()[0]:.1f}); command: {" ".join([sys.executable] + sys.argv)}', flush=True)
+          f'load {os.getloadavg()[0]:.1f}), ROS_DOMAIN_ID {domain}; command: '
+          f'{" ".join([sys.executable] + sys.argv)}', flush=True)
     results = {}
     for name in a.nodes.split(','):
         traffic = None
@@ -123,6 +129,7 @@ def main(argv=None):
                 'recorder': ['-p', f'robots:={ROBOTS}', '-p', f'output:={tmp / "rec.npz"}',
                              '-p', 'use_sim_time:=true']}[name]
         rows = []
+        series_before = swarm.shm_snapshot()
         try:
             for i in range(a.reps):
                 sig = signal.SIGINT if i % 2 == 0 else signal.SIGTERM
@@ -134,6 +141,8 @@ def main(argv=None):
             if traffic is not None:
                 traffic.send_signal(signal.SIGINT)
                 traffic.wait(timeout=30)
+        time.sleep(0.5)
+        series_left = _leftovers(series_before)
         times = sorted(r['stop_s'] for r in rows if r['stop_s'] is not None)
         results[name] = rows
         clean = sum(r['rc'] == 0 for r in rows)
@@ -141,8 +150,9 @@ def main(argv=None):
         left = sum(bool(r['left']) for r in rows)
         p50 = times[len(times) // 2] if times else float('nan')
         print(f'{name:9s}: exit 0 {clean}/{len(rows)}, exit 0 within 2 s {fast}/{len(rows)}, '
-              f'leftover shm files {left}/{len(rows)}, stop time p50 {p50:.3f} s, max '
-              f'{max(times) if times else float("nan"):.3f} s', flush=True)
+              f'stops leaving shm segments {left}/{len(rows)}, shm files left after the series '
+              f'{len(series_left)}, stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
+              + (f' (left: {series_left[:6]})' if series_left else ''), flush=True)
     claim.release()
     return 0
 
