@@ -418,7 +418,7 @@ def _swarm_main(argv, capsys):
 def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsys, untrained_policies):
     out = str(tmp_path / 'run.npz')
     code, cap = _swarm_main(['--robots', '0', '--record', out], capsys)
-    assert code == 2 and '--robots must be >= 1, got 0' in cap.err
+    assert code == 2 and '--robots must be in 1..10000' in cap.err and 'got 0' in cap.err
     code, cap = _swarm_main(['--policy', str(tmp_path / 'missing.pt'), '--record', out], capsys)
     assert code == 2 and 'missing.pt: no such file' in cap.err
     code, cap = _swarm_main(['--scenario', 'boids3d', '--policy', str(untrained_policies['flock2d']), '--record', out],
