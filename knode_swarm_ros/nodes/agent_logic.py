@@ -335,7 +335,7 @@ class AgentLogic:
             else:  # the previous brake was held for one tick; braking never reverses an axis
                 prev = self._stop_v
                 v = prev + last.value * hold
-                v[np.sign(v) * np.sign(prev) < 0] = 0.0
+                v[(np.sign(v) * np.sign(prev) < 0) | (np.abs(v) < 1e-9)] = 0.0  # at rest (no float dust)
             self._stop_v = v
         cmd = Command(int(now_ns), None, stop_command(kind, v, self.limit, hold), stop=True)
         self.last_command = cmd

@@ -28,7 +28,7 @@ from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_FAILURE, EXIT_OK, RECORDER_PROGR
                      robot_frame, status_json)
 from .conversions import CdrError, odom_from_cdr
 from .executor import run_node
-from .params import declare
+from .params import check_overrides, declare
 from .recorder_logic import FrameCollector, swarm_metrics
 
 __all__ = ['RecorderNode', 'main']
@@ -58,6 +58,7 @@ class RecorderNode(Node):
                           '(or before 0) are dropped', float_range=(1e-3, 86_400.0))
         future_tolerance = declare(self, 'future_tolerance', 0.5, 'states stamped more than this many seconds '
                                    'ahead of the clock are dropped', float_range=(0.0, 86_400.0))
+        check_overrides(self, sys.argv)
         if not self.output:
             raise ConfigError("parameter 'output' is required: pass -p output:=/path/to/run.npz")
         if not self.output.endswith('.npz'):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from functools import partial
 
@@ -34,7 +35,7 @@ from .common import (CLOCK_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MARKERS_TO
 from .conversions import command_msg_type, msg_to_command, odom_to_cdr, time_msg
 from .executor import run_node
 from .markers import swarm_markers
-from .params import declare
+from .params import check_overrides, declare
 from .simulator_logic import SwarmSim, initial_state, initial_state_from_file, make_ground_truth
 
 __all__ = ['SimulatorNode', 'main']
@@ -98,6 +99,7 @@ class SimulatorNode(Node):
                                        'the log (0: none)', float_range=(0.0, 86_400.0))
         self.exit_when_done = declare(self, 'exit_when_done', True, 'exit after the last step (otherwise keep '
                                       'publishing the final state until stopped)')
+        check_overrides(self, sys.argv)
 
         if init:
             z0, path, traj = initial_state_from_file(init, scenario, robots)
