@@ -90,16 +90,22 @@ def test_ctrl_c_summarises_only_a_file_this_run_wrote(tmp_path, untrained_polici
     record = tmp_path / 'old.npz'
     save_trajectories(record, np.zeros((1, 2, 10, 4)) + 7.0, 0.01, 'flock2d', {'generator': 'an earlier run'})
     before = record.read_bytes()
-    proc = subprocess.Popen(_cmd(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 10,
+    proc = subprocess.Popen(_cmd(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 3,
                                  '--steps', 100000, '--record', record),
                             env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
-    first = proc.stdout.readline()    # the launcher is up: Ctrl-C now, whatever its children are doing
-    assert 'ROS_DOMAIN_ID' in first, first
-    os.killpg(proc.pid, signal.SIGINT)
-    out = first + proc.stdout.read()
-    assert proc.wait(timeout=600) == 130, out
-    assert 'Traceback' not in out and 'KeyboardInterrupt' not in out, out
+    try:
+        first = proc.stdout.readline()    # the launcher is up: Ctrl-C now, whatever its children are doing
+        assert 'ROS_DOMAIN_ID' in first, first
+        os.killpg(proc.pid, signal.SIGINT)
+        out = first + proc.stdout.read()
+        assert proc.wait(timeout=600) == 130, out
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert 'SIGINT: stopping every process' in out and 'Traceback' not in out, out
+    assert 'KeyboardInterrupt' not in out and 'Exception in' not in out, out
     if record.read_bytes() == before:   # the recorder had nothing yet: the old file is not this run's
         assert 'earlier file, left as it was' in out and 'avd (' not in out, out
     else:                               # it had frames: it saved them, and that file is summarised

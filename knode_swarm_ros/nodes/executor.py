@@ -17,6 +17,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from .common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, ConfigError
@@ -38,8 +39,8 @@ def make_executor():
     return EventsExecutor()
 
 
-def spin_until(executor, future: Future = None, context=None) -> None:
-    """Spin ``executor`` until ``future`` is done (forever when None).
+def spin_until(executor, future: Future = None, context=None, stop: Optional[Callable[[], bool]] = None) -> None:
+    """Spin ``executor`` until ``future`` is done (forever when None) or ``stop()`` says so.
 
     Raises:
         ExternalShutdownException: the context was shut down (Ctrl-C, SIGTERM).
@@ -51,7 +52,7 @@ def spin_until(executor, future: Future = None, context=None) -> None:
         context = get_default_context()
     while not future.done():
         executor.spin_until_future_complete(future, timeout_sec=_SLICE_S)
-        if not context.ok():
+        if not context.ok() or (stop is not None and stop()):
             raise ExternalShutdownException()
 
 
@@ -66,8 +67,9 @@ class _Interrupts:
     Python's own SIGINT handler raises KeyboardInterrupt wherever the main thread happens to be
     (inside rclpy.init, a callback, the recorder's save, the executor's teardown: an exception
     thrown through the EventsExecutor's C++ aborts the process). This handler only records the
-    signal; rclpy's handlers, installed by rclpy.init on top of it, shut the context down, which
-    ends :func:`spin_until`. A signal that comes before rclpy.init is noticed right after it.
+    signal, which stops the start-up at the next step; once the EventsExecutor exists, its own
+    handler takes over (it stops the spin and shuts the context down, which ends
+    :func:`spin_until`).
     """
 
     def __init__(self):
@@ -125,7 +127,11 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
     with _Interrupts() as interrupts:
         try:
             try:
-                rclpy.init(args=args)
+                # No rclpy signal handlers: they shut the context down from another thread, in the
+                # middle of a callback that then fails to publish. The EventsExecutor's own handler
+                # stops the spin and shuts the context down between callbacks; before it exists,
+                # _Interrupts notes the signal.
+                rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
             except RCLError as exc:
                 raise ConfigError(f'cannot parse the ROS arguments: {_first_line(exc)}') from None
             if interrupts.signal is None:
@@ -133,7 +139,7 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
             if interrupts.signal is None:
                 executor = make_executor()
                 executor.add_node(node)
-                spin_until(executor, getattr(node, 'finished', None))
+                spin_until(executor, getattr(node, 'finished', None), stop=lambda: interrupts.signal is not None)
                 code = getattr(node, 'exit_code', EXIT_OK)
         except ConfigError as exc:
             print(f'knode_swarm_ros {name}: error: {exc}', file=sys.stderr)

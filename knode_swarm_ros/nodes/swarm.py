@@ -309,6 +309,9 @@ def child_environment(domain_id: int) -> Dict[str, str]:
 
 
 # --- processes -------------------------------------------------------------------------
+class _Interrupted(Exception):
+    """Ctrl-C / SIGTERM / SIGHUP reached the launcher (raised by Children.pump)."""
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         import ctypes
@@ -380,12 +383,15 @@ class Children:
     def __init__(self):
         self.items: Dict[str, Child] = {}
         self.selector = selectors.DefaultSelector()
+        self.interrupted = False  # set by the launcher's signal handler; pump() raises _Interrupted
 
     def add(self, child: Child) -> None:
         self.items[child.name] = child
         self.selector.register(child.proc.stdout, selectors.EVENT_READ, child)
 
     def pump(self, timeout: float) -> None:
+        if self.interrupted:
+            raise _Interrupted()
         if not self.selector.get_map():
             time.sleep(timeout)
             return
@@ -589,8 +595,6 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
 
 
 # --- the run ---------------------------------------------------------------------------
-class _Interrupted(Exception):
-    pass
 
 
 def run(plan: Plan) -> int:
@@ -605,8 +609,11 @@ def run(plan: Plan) -> int:
     stop_reason = {'signal': None}
 
     def on_signal(signum, _frame):
+        # Only a flag: a signal handler that raises can have its exception swallowed (an at-fork
+        # hook of the logging module runs pending handlers while a child is started and ignores
+        # what they raise, measured) or raised in the forked child. Children.pump raises it.
         stop_reason['signal'] = signum
-        raise _Interrupted()
+        children.interrupted = True
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     code = EXIT_OK
@@ -639,6 +646,7 @@ def run(plan: Plan) -> int:
         # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        children.interrupted = False
         for note in children.stop():
             _say(note)
     finally:
