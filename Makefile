@@ -6,6 +6,9 @@ PYTHON ?= python3
 PY := $(VENV)/bin/python
 VENV_PREFIX = $(abspath $(VENV))
 PYTEST_ARGS ?=
+# cpu (default): the CPU build of the pinned torch, from the configured pip sources or else
+# PyTorch's CPU index, or a clear error (tools/torch_build.py); cuda: whatever pip resolves.
+TORCH_BUILD ?= cpu
 
 # Every ROS process started from here stays on this machine.
 ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
@@ -19,10 +22,12 @@ venv: $(VENV)/.installed
 
 # Re-run when the pins or the packaging change (the data files, config/ among them,
 # are copied into $(VENV)/share at install time).
-$(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setup.cfg package.xml $(wildcard config/*)
+$(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setup.cfg package.xml tools/torch_build.py \
+                    $(wildcard config/*)
 	@test -x $(PY) || { echo "creating $(VENV) with $$(command -v $(PYTHON)) ($$($(PYTHON) --version 2>&1))"; \
 	  $(PYTHON) -m venv $(VENV); }
 	$(PY) -m pip install --upgrade pip
+	TORCH_BUILD=$(TORCH_BUILD) $(PY) tools/torch_build.py
 	$(PY) -m pip install -r requirements-dev.txt
 	$(PY) -m pip install -e . --no-deps
 	@# An editable install leaves out setup.py's data_files (the ament index marker,

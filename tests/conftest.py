@@ -4,7 +4,6 @@ Sections: environment for ROS processes started by tests, then fixtures. Add new
 fixtures in their own section below; keep this module free of heavy imports (torch,
 rclpy) so that collection stays fast and tests that need neither never load them.
 """
-import itertools
 import os
 import sys
 
@@ -29,25 +28,27 @@ if sys.prefix not in _ament:
 
 # --- ROS domains ------------------------------------------------------------------
 # ROS_DOMAIN_ID 0 is everyone's default: never used here. 1..101 are valid on Linux
-# with the default port mapping.
+# with the default port mapping. Every domain a test uses is claimed with an exclusive lock
+# file (knode_swarm_ros.nodes.domains), so two copies of the suite running at once (or a
+# swarm started by hand) never share one; the claim ends with the test.
 _DOMAIN_MIN, _DOMAIN_MAX = 1, 101
-_domain_counter = itertools.count()
 
 
-def next_ros_domain_id():
-    """A domain id in 1..101, different for each call in this process (cycling after
-    101 calls) and offset by the process id so concurrent pytest runs rarely collide."""
-    span = _DOMAIN_MAX - _DOMAIN_MIN + 1
-    return _DOMAIN_MIN + (os.getpid() % 100 + next(_domain_counter)) % span
+def claim_ros_domain():
+    """A :class:`DomainClaim` on a free domain id in 1..101 (``.domain_id``; ``.release()``)."""
+    from knode_swarm_ros.nodes.domains import claim_domain
+    return claim_domain(range(_DOMAIN_MIN, _DOMAIN_MAX + 1))
 
 
 @pytest.fixture
 def ros_domain_id(monkeypatch):
-    """A ROS_DOMAIN_ID of this test's own (int), also set in os.environ for the test
-    (and so for the processes it starts); the previous value returns afterwards."""
-    domain_id = next_ros_domain_id()
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
-    return domain_id
+    """A ROS_DOMAIN_ID of this test's own (int), claimed for the test's duration, also set in
+    os.environ for the test (and so for the processes it starts); the previous value returns
+    afterwards."""
+    claim = claim_ros_domain()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(claim.domain_id))
+    yield claim.domain_id
+    claim.release()
 
 
 # --- Markers (added with the ROS nodes; owner: knode_swarm_ros/nodes) ------------------

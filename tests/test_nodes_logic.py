@@ -189,7 +189,10 @@ def test_realtime_stale_own_state_gives_a_stop_command():
     cmd = logic.tick(1 * SEC + int(0.1 * SEC))
     assert not cmd.stop and cmd.stamp_ns == 1 * SEC and cmd.neighbours == 3
     stop = logic.tick(2 * SEC)
-    assert stop.stop and stop.step is None and stop.stamp_ns == 2 * SEC and np.all(stop.value == 0)
+    assert stop.stop and stop.step is None and stop.stamp_ns == 2 * SEC
+    # flock2d is acceleration-commanded: the stop brakes against the held command (+6, 0), it does
+    # not coast with zero acceleration (tests/test_saturation_and_stop.py has the details).
+    assert stop.value[0] < 0 and stop.value[1] == 0
     assert logic.counters['stop_commands'] == 1
 
 
@@ -298,8 +301,9 @@ def test_simulator_lockstep_bookkeeping_lost_and_rejoined_robots():
     before = sim.states.copy()
     sim.advance()
     from knode_swarm_ros.core import zoh_step
-    assert np.array_equal(sim.states, zoh_step(before, np.array([[1.0, 0.0], [0.0, 0.0]]), spec, spec.dt))
-    # Robot 1 is held (its last command: none, so zero) and not waited for.
+    # Robot 1 (velocity (0, 1)) is stopped, braking to rest (-v / dt without a stop_limit), and not waited for.
+    assert np.array_equal(sim.states, zoh_step(before, np.array([[1.0, 0.0], [0.0, -1.0 / spec.dt]]), spec, spec.dt))
+    assert sim.states[1, 3] == 0.0
     assert sim.waiting() == [0]
     assert sim.offer(0, sim.stamp_ns, [2.0, 0.0]) == 'accepted'
     assert sim.offer(1, sim.stamp_ns, [0.0, 3.0]) == 'rejoined'
@@ -414,7 +418,7 @@ def _swarm_main(argv, capsys):
 def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsys, untrained_policies):
     out = str(tmp_path / 'run.npz')
     code, cap = _swarm_main(['--robots', '0', '--record', out], capsys)
-    assert code == 2 and '--robots must be >= 1, got 0' in cap.err
+    assert code == 2 and '--robots must be in 1..10000' in cap.err and 'got 0' in cap.err
     code, cap = _swarm_main(['--policy', str(tmp_path / 'missing.pt'), '--record', out], capsys)
     assert code == 2 and 'missing.pt: no such file' in cap.err
     code, cap = _swarm_main(['--scenario', 'boids3d', '--policy', str(untrained_policies['flock2d']), '--record', out],

@@ -5,7 +5,6 @@ Y_i, the recorder's file what was published. Waiting is always a polled conditio
 deadline, never a fixed sleep.
 """
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -41,9 +40,9 @@ def flock_policy(untrained_policies):
 
 
 @pytest.fixture
-def ros(monkeypatch):
-    """An rclpy context of its own on a random domain, localhost only; shut down afterwards."""
-    domain = random.randint(30, 101)
+def ros(monkeypatch, ros_domain_id):
+    """An rclpy context of its own on a claimed domain, localhost only; shut down afterwards."""
+    domain = ros_domain_id
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     context = rclpy.Context()
@@ -184,7 +183,7 @@ def _env(domain):
 
 
 @pytest.mark.parametrize('case', ['missing', 'corrupt', 'bad_parameter'])
-def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
+def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case, ros_domain_id):
     if case == 'missing':
         args, expect = ['-p', f'policy:={tmp_path}/nope.pt'], 'nope.pt: no such file'
     elif case == 'corrupt':
@@ -194,19 +193,19 @@ def test_agent_executable_refuses_a_bad_policy_or_parameter(tmp_path, case):
     else:
         args, expect = ['-p', 'control_rate:=-5.0'], "parameter 'control_rate' = -5.0 is out of range"
     proc = subprocess.run([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=0', *args],
-                          env=_env(random.randint(30, 101)), capture_output=True, text=True, timeout=120)
+                          env=_env(ros_domain_id), capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert expect in proc.stderr and 'Traceback' not in proc.stderr
 
 
-def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path):
+def test_agent_starts_with_the_shipped_params_file_and_stops_on_sigint(tmp_path, ros_domain_id):
     from knode_swarm_ros.core.policy_io import shipped_policy_path
     assert shipped_policy_path('flock2d').is_file()  # the policy ships: PolicyError if not
     log = tmp_path / 'agent.log'
     with open(log, 'wb') as out:
         proc = subprocess.Popen([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=3',
                                  '--params-file', str(REPO / 'config' / 'agent_flock2d.yaml')],
-                                env=_env(random.randint(30, 101)), stdout=out, stderr=subprocess.STDOUT,
+                                env=_env(ros_domain_id), stdout=out, stderr=subprocess.STDOUT,
                                 start_new_session=True)
     try:
         deadline = time.monotonic() + 90
@@ -253,3 +252,38 @@ def test_recorder_writes_what_it_heard_and_publishes_metrics(ros, tmp_path):
     data = load_trajectories(out)
     assert np.array_equal(data.states[0], frames) and data.dt == pytest.approx(0.01)
     assert data.meta['interrupted'] is False and data.meta['source']['mode'] == 'lockstep'
+
+
+def test_simulator_refuses_an_agent_whose_policy_steps_at_another_dt(ros):
+    """Issue 10, item 10: a simulator dt that differs from the policy's no longer runs to the end."""
+    from knode_swarm_ros.nodes.common import status_json
+    from knode_swarm_ros.nodes.simulator import SimulatorNode
+    sim = ros.add(SimulatorNode('simulator', context=ros.context, parameter_overrides=[
+        Parameter('robots', value=2), Parameter('dt', value=0.02), Parameter('steps', value=10)]))
+    io = ros.node('test_agent_status')
+    status = io.create_publisher(String, 'robot_1/agent_status', qos.STATUS)
+
+    def publish():
+        status.publish(String(data=status_json(id=1, ready=False, dt=0.01)))
+
+    assert ros.spin_until(lambda: sim.finished.done(), each=publish)
+    assert sim.exit_code == 2 and sim.sim.step == 0
+
+
+def test_parameter_typos_and_shadowed_values_are_refused(tmp_path, ros_domain_id):
+    """Issue 10, item 10: a mistyped key, or -p before a --params-file that sets it again."""
+    from knode_swarm_ros.nodes.params import shadowed_overrides
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text('/**:\n  ros__parameters:\n    state_timout: 0.3\n')
+    cases = [(['-p', 'id:=0', '--params-file', str(typo)], "unknown parameter 'state_timout': did you mean "
+                                                            "'state_timeout'?"),
+             (['-p', 'id:=0', '-p', 'policy:=/x.pt', '--params-file', str(REPO / 'config' / 'agent_flock2d.yaml')],
+              "parameter 'policy' is given with -p before --params-file")]
+    for args, expect in cases:
+        proc = subprocess.run([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', *args],
+                              env=_env(ros_domain_id), capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and expect in proc.stderr and 'Traceback' not in proc.stderr, proc.stderr
+    good = ['x', '--ros-args', '--params-file', str(REPO / 'config' / 'agent_flock2d.yaml'), '-p', 'policy:=/x.pt']
+    assert shadowed_overrides(good, 'agent_0') == []
+    assert shadowed_overrides(['x', '--ros-args', '-p', 'mode:=lockstep', '--params-file',
+                               str(REPO / 'config' / 'agent_flock2d.yaml')], 'agent_0')[0][0] == 'mode'

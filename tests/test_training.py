@@ -211,6 +211,30 @@ def test_divergence_guard_on_poisoned_data(tmp_path):
         Trainer(cfg, str(poisoned), str(tmp_path / "run"), progress=False, log=lambda *a: None).run()
 
 
+def test_a_failed_fresh_run_leaves_the_earlier_run_in_its_directory_intact(tmp_path):
+    """Issue 10, item 7: a new run that fails before its first epoch must not delete the old
+    summary and metrics, rewrite the config, or pass the old checkpoint off as its own."""
+    data, _ = _teacher_data(tmp_path)
+    _, cfg = _config(tmp_path, training={"epochs": 1})
+    run = tmp_path / "run"
+    Trainer(cfg, data, str(run), progress=False, log=lambda *a: None).run()
+    names = ("config.yaml", "metrics.jsonl", "checkpoint.pt", "summary.json")
+    before = {name: (run / name).read_bytes() for name in names}
+    from knode_swarm_ros.core import load_trajectories
+    f = load_trajectories(data)
+    states = f.states.copy()
+    states[0, 20:, 0, 2:] = 1e30
+    poisoned = tmp_path / "poisoned.npz"
+    save_trajectories(poisoned, states, f.dt, f.scenario, f.meta)
+    _, other = _config(tmp_path, seed=4, data={"drop_saturated": False},
+                       training={"epochs": 2, "batch_size": "full"})
+    with pytest.raises(DivergenceError, match="left as they were"):
+        Trainer(other, str(poisoned), str(run), progress=False, log=lambda *a: None).run()
+    assert {name: (run / name).read_bytes() for name in names} == before
+    # ... and the earlier run can still be resumed with its own config.
+    Trainer(cfg, data, str(run), resume=True, progress=False, log=lambda *a: None)
+
+
 @pytest.mark.parametrize("section, value, field", [
     ({"training": {"solver": "euler"}}, None, "training.solver"),
     ({"training": {"lr": -1}}, None, "training.lr"),

@@ -139,13 +139,26 @@ class Trainer:
         os.makedirs(out_dir, exist_ok=True)
         self.ckpt_path = os.path.join(out_dir, "checkpoint.pt")
         self.metrics_path = os.path.join(out_dir, "metrics.jsonl")
+        # A fresh run leaves an earlier run's files in out_dir alone until its own first epoch is
+        # done (_claim_out): a run that fails before that must not damage them.
+        self._claimed = resume
         if resume:
             self._resume()
-        else:
-            for name in ("metrics.jsonl", "summary.json"):
-                if os.path.exists(os.path.join(out_dir, name)):
-                    os.unlink(os.path.join(out_dir, name))
+            self._write_config()
+
+    def _claim_out(self) -> None:
+        if self._claimed:
+            return
+        for name in ("metrics.jsonl", "summary.json"):
+            if os.path.exists(os.path.join(self.out, name)):
+                os.unlink(os.path.join(self.out, name))
         self._write_config()
+        self._claimed = True
+
+    def _last_good(self) -> str:
+        if not self._claimed:
+            return f"no epoch of this run completed; the files already in {self.out} were left as they were"
+        return f"last good checkpoint (epoch {self.epoch}) kept at {self.ckpt_path}"
 
     # -- persistence
     def _write_config(self) -> None:
@@ -252,8 +265,7 @@ class Trainer:
                 if not math.isfinite(value) or (self.ref_loss is not None and value > tc["diverge_factor"] * self.ref_loss):
                     raise DivergenceError(f"epoch {e}: batch loss {value:.4g} is "
                                           f"{'not finite' if not math.isfinite(value) else 'exploding'} "
-                                          f"(reference {self.ref_loss}); stopped, last good checkpoint "
-                                          f"(epoch {self.epoch}) kept at {self.ckpt_path}")
+                                          f"(reference {self.ref_loss}); stopped, {self._last_good()}")
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 if tc["grad_clip"] is not None:
@@ -263,15 +275,13 @@ class Trainer:
                     biggest = max(float(p.abs().max()) for p in self.policy.parameters())
                 if not math.isfinite(biggest) or biggest > tc["max_param"]:
                     raise DivergenceError(f"epoch {e}: a parameter reached {biggest:.3g} (limit training.max_param = "
-                                          f"{tc['max_param']:g}); stopped, last good checkpoint (epoch {self.epoch}) "
-                                          f"kept at {self.ckpt_path}")
+                                          f"{tc['max_param']:g}); stopped, {self._last_good()}")
                 total += value * len(idx)
                 count += len(idx)
                 bar.set_postfix(loss=f"{total / count:.4g}")
             train_loss = total / count
             if not all(torch.all(torch.isfinite(p)) for p in self.policy.parameters()):
-                raise DivergenceError(f"epoch {e}: parameters became non-finite; stopped, last good checkpoint "
-                                      f"(epoch {self.epoch}) kept at {self.ckpt_path}")
+                raise DivergenceError(f"epoch {e}: parameters became non-finite; stopped, {self._last_good()}")
             if self.ref_loss is None:
                 self.ref_loss = train_loss
             lr = self.opt.param_groups[0]["lr"]
@@ -289,6 +299,7 @@ class Trainer:
             self.epoch = e
             self.elapsed = time.perf_counter() - start
             record["elapsed_s"] = round(self.elapsed, 2)
+            self._claim_out()
             with open(self.metrics_path, "a") as fh:
                 fh.write(json.dumps(record) + "\n")
             self._save_checkpoint()

@@ -24,12 +24,25 @@ from .scenarios import SCENARIOS, get_scenario
 from .trajectory import atomic_write
 
 __all__ = ["PolicyError", "LoadedPolicy", "export_policy", "load_policy", "shipped_policy_path",
-           "REQUIRED_KEYS", "FORMAT"]
+           "REQUIRED_KEYS", "FORMAT", "BOUNDS"]
 
 FORMAT = "knode-policy/1"
 REQUIRED_KEYS = ("format", "scenario", "state_dim", "command_dim", "command", "k", "d_cr", "tau",
                  "dt", "state_layout")
 PathLike = Union[str, os.PathLike]
+
+#: Allowed ranges of the numeric knode.json keys (inclusive; d_cr and command_limit exclude 0).
+#: Every robot builds and evaluates tensors and buffers from these numbers before checking
+#: anything else, so a file must not be able to ask for absurd sizes (k = 10**9 allocates 32 GB
+#: in the first forward call) or times that break the stamp arithmetic (dt = 1e-300).
+BOUNDS = {"k": (1, 1024), "tau": (0, 10_000), "d_cr": (0.0, 1e6), "dt": (1e-6, 3600.0),
+          "command_limit": (0.0, 1e9)}
+_WHY = {"k": "rows of Y: the robot plus at most 1023 neighbours; Y [B, k, d] is built every step",
+        "tau": "delay in steps: every robot buffers 4 tau + 8 states of every robot",
+        "d_cr": "communication radius in metres",
+        "dt": "seconds per step: stamps are integer nanoseconds, so a step spans at least 1000 ns; "
+              "at most an hour",
+        "command_limit": "per-axis saturation of the command"}
 
 
 class PolicyError(ValueError):
@@ -116,6 +129,9 @@ def _check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) 
     missing = [key for key in REQUIRED_KEYS if key not in meta]
     if missing:
         raise PolicyError(f"{where}: knode.json lacks required key(s) {', '.join(missing)}")
+    for key in ("format", "scenario", "command"):
+        if not isinstance(meta[key], str):
+            raise PolicyError(f"{where}: knode.json key {key!r} must be a string, got {meta[key]!r}")
     if meta["format"] != FORMAT:
         raise PolicyError(f"{where}: knode.json key 'format' is {meta['format']!r}, expected {FORMAT!r}")
     if meta["scenario"] not in SCENARIOS:
@@ -136,15 +152,18 @@ def _check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) 
     def is_num(v):
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
-    numeric = {"k": is_int(meta["k"]) and meta["k"] >= 1,
-               "tau": is_int(meta["tau"]) and meta["tau"] >= 0,
-               "d_cr": is_num(meta["d_cr"]) and meta["d_cr"] > 0,
-               "dt": is_num(meta["dt"]) and meta["dt"] > 0}
+    numeric = {"k": is_int(meta["k"]) and BOUNDS["k"][0] <= meta["k"] <= BOUNDS["k"][1],
+               "tau": is_int(meta["tau"]) and BOUNDS["tau"][0] <= meta["tau"] <= BOUNDS["tau"][1],
+               "d_cr": is_num(meta["d_cr"]) and BOUNDS["d_cr"][0] < meta["d_cr"] <= BOUNDS["d_cr"][1],
+               "dt": is_num(meta["dt"]) and BOUNDS["dt"][0] <= meta["dt"] <= BOUNDS["dt"][1]}
     if "command_limit" in meta and meta["command_limit"] is not None:
-        numeric["command_limit"] = is_num(meta["command_limit"]) and meta["command_limit"] > 0
+        numeric["command_limit"] = is_num(meta["command_limit"]) and \
+            BOUNDS["command_limit"][0] < meta["command_limit"] <= BOUNDS["command_limit"][1]
     for key, ok in numeric.items():
         if not ok:
-            raise PolicyError(f"{where}: knode.json key {key!r} has invalid value {meta[key]!r}")
+            low, high = BOUNDS[key]
+            raise PolicyError(f"{where}: knode.json key {key!r} has invalid value {meta[key]!r} "
+                              f"(allowed: {low:g} .. {high:g}; {_WHY[key]})")
     for key, value in (expect or {}).items():
         if value is None:
             continue

@@ -16,12 +16,15 @@ from typing import Callable, Optional
 import numpy as np
 
 from .network import neighbour_matrix
+from .saturation import saturate
 from .scenarios import Scenario, get_scenario
 
 __all__ = ["zoh_step", "zoh_step_torch", "rollout", "policy_commands", "PolicyFn"]
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+_POLICY_LIMIT = object()  # rollout's default: the policy's own ``command_limit`` attribute, if any
 
 
 def zoh_step(states: np.ndarray, command: np.ndarray, scenario: Scenario, dt: float) -> np.ndarray:
@@ -63,16 +66,19 @@ def heading_torch(c, fallback):
 
 
 def policy_commands(policy: PolicyFn, z_now: np.ndarray, z_delayed: np.ndarray, scenario: Scenario,
-                    d_cr: float, k: int) -> np.ndarray:
-    """Commands ``[..., n, m]`` of every robot: neighbour matrices, then one batched policy call."""
+                    d_cr: float, k: int, command_limit: Optional[float] = None) -> np.ndarray:
+    """Commands ``[..., n, m]`` of every robot: neighbour matrices, then one batched policy call,
+    saturated per axis at ``command_limit`` (:func:`core.saturation.saturate`, the agent's rule)."""
     Y, mask = neighbour_matrix(z_now, z_delayed, scenario.position_dim, d_cr, k)
     lead = Y.shape[:-2]
     out = policy(Y.reshape((-1,) + Y.shape[-2:]), mask.reshape((-1, mask.shape[-1])))
-    return np.asarray(out, dtype=np.float64).reshape(lead + (scenario.command_dim,))
+    out = saturate(np.asarray(out, dtype=np.float64), command_limit)
+    return out.reshape(lead + (scenario.command_dim,))
 
 
 def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: float, k: int,
-            tau: int, dt: float, progress: Optional[Callable[[int], None]] = None) -> np.ndarray:
+            tau: int, dt: float, progress: Optional[Callable[[int], None]] = None,
+            command_limit=_POLICY_LIMIT) -> np.ndarray:
     """Roll a policy out from initial states.
 
     Args:
@@ -81,6 +87,9 @@ def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: f
         steps: number of steps; the result holds ``steps + 1`` frames, frame 0 = z0.
         tau: delay in steps; before t - tau exists the earliest frame is used.
         progress: optional callback called with the step index after each step.
+        command_limit: per-axis saturation of every command (None: none); by default the
+            policy's ``command_limit`` attribute (a :class:`LoadedPolicy` has its knode.json
+            value), so the offline rollout applies exactly what an agent applies.
 
     Returns:
         float64 ``[S, steps + 1, n, d]`` (``[steps + 1, n, d]`` for a single ``[n, d]`` input).
@@ -94,11 +103,13 @@ def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: f
         raise ValueError(f"z0 must be [n, {spec.state_dim}] or [S, n, {spec.state_dim}], got {z0.shape}")
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
+    if command_limit is _POLICY_LIMIT:
+        command_limit = getattr(policy, "command_limit", None)
     out = np.empty((z0.shape[0], steps + 1) + z0.shape[1:], dtype=np.float64)
     out[:, 0] = z0
     for t in range(steps):
         z_delayed = out[:, max(t - tau, 0)]
-        command = policy_commands(policy, out[:, t], z_delayed, spec, d_cr, k)
+        command = policy_commands(policy, out[:, t], z_delayed, spec, d_cr, k, command_limit)
         out[:, t + 1] = zoh_step(out[:, t], command, spec, dt)
         if progress is not None:
             progress(t)

@@ -70,6 +70,16 @@ def atomic_write(path: PathLike, write) -> None:
         raise
 
 
+def _scalar(where: str, name: str, value: np.ndarray, what: str, kinds: str):
+    """The single value of field ``name`` (a 0-d array of dtype kind in ``kinds``), or a
+    :class:`TrajectoryError` naming the field."""
+    value = np.asarray(value)
+    if value.ndim != 0 or value.dtype.kind not in kinds:
+        shape = f"an array of shape {value.shape}" if value.ndim else f"dtype {value.dtype}"
+        raise TrajectoryError(f"{where}: field {name!r} must be {what}, got {shape}")
+    return str(value) if kinds == "U" else float(value)
+
+
 def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
     try:
         spec = get_scenario(scenario)
@@ -114,17 +124,19 @@ def load_trajectories(path: PathLike, scenario: Optional[str] = None) -> Traject
             if missing:
                 raise TrajectoryError(f"{where}: missing field(s) {', '.join(missing)}")
             states = np.asarray(data["states"], dtype=np.float64)
-            dt = float(data["dt"])
-            name = str(data["scenario"])
-            meta_text = str(data["meta"])
+            dt = _scalar(where, "dt", data["dt"], "a number (seconds between frames)", "fiu")
+            name = _scalar(where, "scenario", data["scenario"], "a string", "U")
+            meta_text = _scalar(where, "meta", data["meta"], "a JSON string", "U")
     except TrajectoryError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, ValueError, TypeError, zipfile.BadZipFile, EOFError) as exc:
         raise TrajectoryError(f"{where}: not a readable .npz trajectory file ({exc})") from None
     try:
         meta = json.loads(meta_text) if meta_text else {}
     except json.JSONDecodeError as exc:
         raise TrajectoryError(f"{where}: field 'meta' is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise TrajectoryError(f"{where}: field 'meta' must be a JSON object, got {type(meta).__name__}")
     _validate(where, states, dt, name)
     if scenario is not None and name != scenario:
         raise TrajectoryError(f"{where}: field 'scenario' is {name!r}, expected {scenario!r}")

@@ -8,3 +8,6 @@ topic, ``swarm`` the multi-process launcher. See docs/ros.md.
 
 Importing this package imports neither rclpy nor torch.
 """
+from .startup import quiet_until_running
+
+quiet_until_running()  # in a node executable only: Ctrl-C during the slow imports exits quietly

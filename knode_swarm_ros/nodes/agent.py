@@ -29,7 +29,7 @@ from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, odom_topic, robot_frame, robot_id_list, status_json)
 from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
 from .executor import run_node
-from .params import declare, declare_int_array, node_name_from_args
+from .params import check_overrides, declare, declare_int_array, node_name_from_args
 
 __all__ = ['AgentNode', 'main', 'load_agent_policy']
 
@@ -118,6 +118,7 @@ class AgentNode(Node):
         status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
                                 float_range=(0.01, 3600.0))
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
+        check_overrides(self, sys.argv)
 
         ids = robot_id_list(robots, robot_ids)
         config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
@@ -201,7 +202,8 @@ class AgentNode(Node):
             if cmd.stop:
                 own = self.logic.newest_ns.get(self.logic.me, 0)
                 self._throttled('stale', f'own state is stale ({(now - own) * 1e-9:.3f} s old, timeout '
-                                f'{self.logic.config.state_timeout:g} s): publishing a zero command (stop)',
+                                f'{self.logic.config.state_timeout:g} s): publishing a stop command '
+                                '(zero velocity, or a brake to rest)',
                                 warn=True)
             self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
         self._log_events()

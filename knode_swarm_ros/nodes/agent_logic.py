@@ -18,7 +18,10 @@ core's neighbour-matrix builder and the policy file's controller:
   after a lost message).
 * ``realtime``: ``tick(now_ns)`` (the control timer) uses the newest own state and, for every
   peer heard within ``state_timeout``, its newest state at or before ``own step - tau``; an own
-  state older than ``state_timeout`` gives a zero command (stop), stamped ``now``.
+  state older than ``state_timeout`` gives a stop command, stamped ``now``: zero velocity, or
+  for an acceleration-commanded robot a saturated brake to rest from the velocity it is
+  estimated to have (its last state carried forward under the commands sent since:
+  :func:`knode_swarm_ros.core.saturation.stop_command`), so it does not coast.
 
 Y_i comes from :func:`knode_swarm_ros.core.neighbour_matrix_single` with the rows ordered by
 robot id (ties go to the lower id, as in the offline rollout). With ``parity_batch`` the policy
@@ -26,7 +29,8 @@ is evaluated in a batch shaped like the offline rollout's (one row per robot, th
 matrix at its own index): float32 matrix products round differently for different batch
 shapes, and this makes a lockstep run equal :func:`knode_swarm_ros.core.rollout` bit for bit
 (lockstep only: in real time there is no rollout to match, and a batch of 1 is cheaper).
-Commands are saturated per axis at the command limit.
+Commands are saturated per axis by :func:`knode_swarm_ros.core.saturation.saturate` at the
+policy's ``command_limit``, lowered (never raised) by the ``command_limit`` parameter.
 """
 from __future__ import annotations
 
@@ -37,6 +41,7 @@ import numpy as np
 
 from ..core.delay_buffer import DelayBuffer
 from ..core.network import neighbour_matrix_single
+from ..core.saturation import effective_limit, saturate, stop_command
 from ..core.scenarios import get_scenario
 from .common import MODES, ConfigError
 
@@ -138,8 +143,7 @@ class AgentLogic:
         self.tau = int(policy.tau)
         self.k = int(policy.k)
         self.d_cr = float(policy.d_cr)
-        limits = [x for x in (config.command_limit or None, policy.command_limit) if x]
-        self.limit: Optional[float] = min(limits) if limits else None
+        self.limit: Optional[float] = effective_limit(policy.command_limit, config.command_limit)
         self.timeout_ns = int(round(config.state_timeout * 1e9))
         self.future_ns = int(round(config.future_tolerance * 1e9))
         self.buffer = DelayBuffer(self.dt, self.tau, horizon=max(64, 4 * self.tau + 8))
@@ -152,6 +156,8 @@ class AgentLogic:
         self.last_drop: Optional[Tuple[str, int, int]] = None  # (reason, robot, stamp_ns)
         self.events: List[str] = []  # human-readable notes for the node to log, drained by it
         self._lock = _Lockstep()
+        self._last_tick_ns: Optional[int] = None
+        self._stop_v: Optional[np.ndarray] = None  # estimated velocity while stopping (acceleration)
 
     # --- input ---------------------------------------------------------------------
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
@@ -297,11 +303,12 @@ class AgentLogic:
         s, own = latest
         own_ns = self.newest_ns[self.me]
         clock_known = now_ns is not None and now_ns > 0
+        period_ns = None if self._last_tick_ns is None or not clock_known else now_ns - self._last_tick_ns
+        if clock_known:
+            self._last_tick_ns = int(now_ns)
         if clock_known and now_ns - own_ns > self.timeout_ns:
-            self.counters['stop_commands'] += 1
-            cmd = Command(int(now_ns), None, np.zeros(self.spec.command_dim), stop=True)
-            self.last_command = cmd
-            return cmd
+            return self._stop(int(now_ns), own, own_ns, period_ns)
+        self._stop_v = None
         rows: Dict[int, np.ndarray] = {}
         for rid in self.ids:
             newest = self.newest_ns.get(rid)
@@ -313,6 +320,26 @@ class AgentLogic:
             if z is not None:
                 rows[rid] = z
         return self._compute(s, own_ns, own, rows)
+
+    def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
+        """The stop command of a stale own state (see the module doc)."""
+        self.counters['stop_commands'] += 1
+        kind = self.spec.command
+        hold = period_ns * 1e-9 if period_ns and period_ns > 0 else self.dt  # time since the last tick
+        v = np.zeros(self.spec.command_dim)
+        if kind == 'acceleration':
+            last = self.last_command
+            if self._stop_v is None:  # stopping starts: the last state carried forward under the held command
+                held = last.value if last is not None and not last.stop else 0.0
+                v = own[self.spec.velocity] + held * ((now_ns - own_ns) * 1e-9)
+            else:  # the previous brake was held for one tick; braking never reverses an axis
+                prev = self._stop_v
+                v = prev + last.value * hold
+                v[(np.sign(v) * np.sign(prev) < 0) | (np.abs(v) < 1e-9)] = 0.0  # at rest (no float dust)
+            self._stop_v = v
+        cmd = Command(int(now_ns), None, stop_command(kind, v, self.limit, hold), stop=True)
+        self.last_command = cmd
+        return cmd
 
     # --- the command ---------------------------------------------------------------
     def neighbour_matrix(self, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Tuple[np.ndarray, np.ndarray]:
@@ -338,11 +365,10 @@ class AgentLogic:
             self.counters['non_finite_command'] += 1
             self.events.append(f'step {step}: the policy returned {u.tolist()}: publishing zero')
             u = np.zeros(self.spec.command_dim)
-        if self.limit is not None:
-            clipped = np.clip(u, -self.limit, self.limit)
-            if np.any(clipped != u):
-                self.counters['clipped'] += 1
-            u = clipped
+        clipped = saturate(u, self.limit)
+        if np.any(clipped != u):
+            self.counters['clipped'] += 1
+        u = clipped
         self.counters['commands'] += 1
         cmd = Command(int(stamp), int(step), u, neighbours=int(mask.sum()) - 1)
         self.last_command = cmd
@@ -357,7 +383,7 @@ class AgentLogic:
     def status(self) -> Dict[str, Any]:
         """JSON-able summary: readiness, counters, lockstep bookkeeping."""
         lock = self._lock
-        return {'id': self.me, 'ready': self.ready, 'heard': len(self.heard()), 'robots': len(self.ids),
+        return {'id': self.me, 'ready': self.ready, 'dt': self.dt, 'heard': len(self.heard()), 'robots': len(self.ids),
                 'missing': self.missing()[:20], 'mode': self.config.mode,
                 'answered': lock.answered, 'pending': lock.pending, 'gone': sorted(lock.gone),
                 'counters': dict(self.counters)}

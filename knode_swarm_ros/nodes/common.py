@@ -24,7 +24,7 @@ __all__ = [
     'MODES', 'odom_topic', 'command_topic', 'agent_status_topic', 'SIMULATOR_STATUS_TOPIC',
     'RECORDER_STATUS_TOPIC', 'RECORDER_PROGRESS_TOPIC', 'MARKERS_TOPIC', 'CLOCK_TOPIC',
     'AVD_TOPIC', 'AMD_TOPIC', 'robot_frame', 'parse_robot_frame', 'WORLD_FRAME', 'stamp_ns',
-    'step_of', 'percentiles', 'status_json', 'parse_status', 'robot_id_list']
+    'step_of', 'percentiles', 'status_json', 'parse_status', 'robot_id_list', 'dt_mismatch']
 
 #: Exit statuses of the executables.
 EXIT_OK = 0
@@ -95,6 +95,18 @@ def stamp_ns(step: int, dt: float) -> int:
 def step_of(ns: int, dt: float) -> int:
     """Step index of a stamp in nanoseconds (inverse of :func:`stamp_ns`)."""
     return int(round(int(ns) / (float(dt) * 1e9)))
+
+
+def dt_mismatch(policy_dt: Any, sim_dt: float) -> Optional[str]:
+    """Why a policy stepping at ``policy_dt`` cannot drive a simulator stepping at ``sim_dt``
+    (a sentence), or None when they agree (relative 1e-9) or ``policy_dt`` is unknown."""
+    try:
+        policy_dt = float(policy_dt)
+    except (TypeError, ValueError):
+        return None
+    if not math.isfinite(policy_dt) or math.isclose(policy_dt, float(sim_dt), rel_tol=1e-9, abs_tol=0.0):
+        return None
+    return f"runs a policy with dt = {policy_dt:g} s but the simulator steps at dt = {float(sim_dt):g} s"
 
 
 def robot_id_list(robots: int, robot_ids: Optional[Sequence[int]] = None) -> List[int]:

@@ -7,18 +7,24 @@ idle (measured: one core at 100 %). :func:`spin_until` therefore spins in slices
 timeout, which both sleeps and notices the shutdown that rclpy's SIGINT/SIGTERM handler
 triggers (``ExternalShutdownException``).
 """
+import os
+import signal
 import sys
 import traceback
 from typing import Callable, Optional
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from .common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, ConfigError
 
 __all__ = ['make_executor', 'spin_until', 'run_node']
+
+RCLError = _rclpy.RCLError
 
 _SLICE_S = 0.25
 
@@ -33,8 +39,8 @@ def make_executor():
     return EventsExecutor()
 
 
-def spin_until(executor, future: Future = None, context=None) -> None:
-    """Spin ``executor`` until ``future`` is done (forever when None).
+def spin_until(executor, future: Future = None, context=None, stop: Optional[Callable[[], bool]] = None) -> None:
+    """Spin ``executor`` until ``future`` is done (forever when None) or ``stop()`` says so.
 
     Raises:
         ExternalShutdownException: the context was shut down (Ctrl-C, SIGTERM).
@@ -46,44 +52,132 @@ def spin_until(executor, future: Future = None, context=None) -> None:
         context = get_default_context()
     while not future.done():
         executor.spin_until_future_complete(future, timeout_sec=_SLICE_S)
-        if not context.ok():
+        if not context.ok() or (stop is not None and stop()):
             raise ExternalShutdownException()
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0].strip() if text else type(exc).__name__
+
+
+class _Interrupts:
+    """Ctrl-C / SIGTERM as a flag, never as a KeyboardInterrupt in the middle of cleanup.
+
+    Python's own SIGINT handler raises KeyboardInterrupt wherever the main thread happens to be
+    (inside rclpy.init, a callback, the recorder's save, the executor's teardown: an exception
+    thrown through the EventsExecutor's C++ aborts the process). This handler only records the
+    signal, which stops the start-up at the next step; once the EventsExecutor exists, its own
+    handler takes over (it stops the spin and shuts the context down, which ends
+    :func:`spin_until`).
+    """
+
+    def __init__(self):
+        self.signal: Optional[int] = None
+        self._old = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[sig] = signal.signal(sig, self._note)
+            except ValueError:  # not the main thread (tests): leave the handlers alone
+                pass
+        return self
+
+    def _note(self, signum, _frame) -> None:
+        self.signal = signum
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+def _teardown(executor, node: Optional[Node]) -> None:
+    """Detach the node from the executor before anything is destroyed: the EventsExecutor aborts
+    ("Destroying callback manager with callbacks remaining") when it is destroyed while entities
+    that registered callbacks with it are still attached, or destroyed under it."""
+    if executor is None:
+        return
+    if node is not None:
+        try:
+            executor.remove_node(node)
+        except Exception:  # noqa: BLE001 - teardown goes on whatever rclpy says here
+            pass
+    try:
+        executor.shutdown()
+    except Exception as exc:  # noqa: BLE001
+        print(f'knode_swarm_ros: executor teardown: {type(exc).__name__}: {exc}', file=sys.stderr)
 
 
 def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node], None], args=None) -> None:
     """The ros2/examples ``main()`` shared by the executables: init, build, spin, clean up, exit.
 
     Spins until the node's ``finished`` future is done (forever without one), then exits with
-    its ``exit_code``; a :class:`ConfigError` (bad parameter or policy) exits with EXIT_CONFIG
-    and a message naming the problem; Ctrl-C / SIGTERM exit cleanly; anything else prints its
-    traceback and exits with EXIT_FAILURE. ``on_exit(node)`` (reports, saving) always runs
-    before the node is destroyed.
+    its ``exit_code``; a :class:`ConfigError` (bad parameter or policy) or ROS arguments that
+    rcl cannot parse (a broken ``--params-file``) exit with EXIT_CONFIG and a message naming the
+    problem; Ctrl-C / SIGTERM at any time, during start-up included, exit cleanly with EXIT_OK;
+    anything else prints its traceback and exits with EXIT_FAILURE. ``on_exit(node)`` (reports,
+    saving) always runs before the node is destroyed, and is not interrupted by a second Ctrl-C.
+    The process ends here (:func:`_end_process`): call it only as an executable's ``main()``.
     """
-    rclpy.init(args=args)
     node: Optional[Node] = None
+    executor = None
     code = EXIT_OK
-    try:
-        node = make_node()
-        executor = make_executor()
-        executor.add_node(node)
-        spin_until(executor, getattr(node, 'finished', None))
-        code = getattr(node, 'exit_code', EXIT_OK)
-    except ConfigError as exc:
-        print(f'knode_swarm_ros {name}: error: {exc}', file=sys.stderr)
-        code = EXIT_CONFIG
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # report, then exit non-zero instead of a bare traceback
-        traceback.print_exc()
-        print(f'knode_swarm_ros {name}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
-        code = EXIT_FAILURE
-    finally:
-        if node is not None:
+    with _Interrupts() as interrupts:
+        try:
             try:
-                on_exit(node)
-            except OSError as exc:
-                print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+                # No rclpy signal handlers: they shut the context down from another thread, in the
+                # middle of a callback that then fails to publish. The EventsExecutor's own handler
+                # stops the spin and shuts the context down between callbacks; before it exists,
+                # _Interrupts notes the signal.
+                rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+            except RCLError as exc:
+                raise ConfigError(f'cannot parse the ROS arguments: {_first_line(exc)}') from None
+            if interrupts.signal is None:
+                node = make_node()
+            if interrupts.signal is None:
+                executor = make_executor()
+                executor.add_node(node)
+                spin_until(executor, getattr(node, 'finished', None), stop=lambda: interrupts.signal is not None)
+                code = getattr(node, 'exit_code', EXIT_OK)
+        except ConfigError as exc:
+            print(f'knode_swarm_ros {name}: error: {exc}', file=sys.stderr)
+            code = EXIT_CONFIG
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except Exception as exc:  # report, then exit non-zero instead of a bare traceback
+            if interrupts.signal is None and rclpy.ok():  # not merely cut short by a shutdown
+                traceback.print_exc()
+                print(f'knode_swarm_ros {name}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+                code = EXIT_FAILURE
+        finally:
+            _teardown(executor, node)
+            if node is not None:
+                try:
+                    on_exit(node)
+                except OSError as exc:
+                    print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
+                node.destroy_node()
+            rclpy.try_shutdown()
+            # The DDS participant (and its /dev/shm files) goes with the context, now.
+            rclpy.get_default_context().destroy()
+    _end_process(code)
+
+
+def _end_process(code: int) -> None:
+    """Exit with ``code`` without running destructors.
+
+    Everything that matters was cleaned up explicitly above (on_exit, node, context, DDS
+    participant). What is left is the EventsExecutor object: when a signal cuts its first entity
+    update short (a shutdown while it registers the node's subscriptions, measured under load),
+    it keeps callbacks for entities it no longer tracks, and its destructor then aborts the
+    process ("Destroying callback manager with callbacks remaining", status -6). Ending here
+    never runs that destructor.
+    """
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        os._exit(code)
+

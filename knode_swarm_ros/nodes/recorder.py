@@ -25,10 +25,10 @@ from ..core.scenarios import get_scenario
 from . import qos
 from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_FAILURE, EXIT_OK, RECORDER_PROGRESS_TOPIC,
                      RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError, odom_topic, parse_status,
-                     robot_frame, status_json, step_of)
+                     robot_frame, status_json)
 from .conversions import CdrError, odom_from_cdr
 from .executor import run_node
-from .params import declare
+from .params import check_overrides, declare
 from .recorder_logic import FrameCollector, swarm_metrics
 
 __all__ = ['RecorderNode', 'main']
@@ -54,12 +54,17 @@ class RecorderNode(Node):
                            'rosbag2 directory (needs the mcap packages of requirements-dev.txt)')
         metrics_rate = declare(self, 'metrics_rate', 5.0, 'avd/amd messages per wall second (0: none)',
                                float_range=(0.0, 1000.0))
+        max_age = declare(self, 'max_age', 5.0, 'states stamped more than this many seconds before the clock '
+                          '(or before 0) are dropped', float_range=(1e-3, 86_400.0))
+        future_tolerance = declare(self, 'future_tolerance', 0.5, 'states stamped more than this many seconds '
+                                   'ahead of the clock are dropped', float_range=(0.0, 86_400.0))
+        check_overrides(self, sys.argv)
         if not self.output:
             raise ConfigError("parameter 'output' is required: pass -p output:=/path/to/run.npz")
         if not self.output.endswith('.npz'):
             raise ConfigError(f"parameter 'output' = {self.output!r} must end with .npz")
 
-        self.frames = FrameCollector(self.scenario, robots)
+        self.frames = FrameCollector(self.scenario, robots, self.dt, max_age, future_tolerance)
         if self.frame_every:
             self.frames.set_every(self.frame_every)
         self.source = {}
@@ -74,6 +79,8 @@ class RecorderNode(Node):
         self._announced = False
         self._dt_warned = False
         self._published_progress = -1
+        self._last_drop_log = {}
+        self._sim_time = bool(self.get_parameter('use_sim_time').value)
 
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         self.status_pub = self.create_publisher(String, RECORDER_STATUS_TOPIC, qos.STATUS)
@@ -97,7 +104,12 @@ class RecorderNode(Node):
         if frame not in ('', robot_frame(robot)):
             self.frames.counters['unknown_id'] += 1
             return
-        if self.frames.add(robot, step_of(stamp, self.dt), z) != 'accepted':
+        # The clock is a reference only when it is the simulation's (use_sim_time, as the swarm runs it).
+        now = self.get_clock().now().nanoseconds if self._sim_time else None
+        outcome = self.frames.receive(robot, stamp, z, now)
+        if outcome != 'accepted':
+            if outcome in ('too_old', 'too_future', 'off_grid', 'non_finite'):
+                self._throttled_drop(outcome, robot, stamp)
             return
         if self.frames.progress > self._published_progress:
             self._published_progress = self.frames.progress
@@ -109,6 +121,13 @@ class RecorderNode(Node):
             self._publish_status()
         if self.phase == 'finishing':
             self._maybe_save()
+
+    def _throttled_drop(self, reason: str, robot: int, stamp: int) -> None:
+        now = time.monotonic()
+        if now - self._last_drop_log.get(reason, -1e9) >= 5.0:
+            self._last_drop_log[reason] = now
+            self.get_logger().warning(f'dropped a state of robot {robot} stamped {stamp * 1e-9:.3f} s ({reason}; '
+                                      f'{self.frames.counters[reason]} in all)')
 
     def _metrics(self, step: int) -> None:
         if self._metrics_period is None or time.monotonic() - self._last_metrics < self._metrics_period:

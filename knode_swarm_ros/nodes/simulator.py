@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from functools import partial
 
@@ -28,13 +29,13 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.scenarios import get_scenario
 from . import qos
-from .common import (CLOCK_TOPIC, EXIT_FAILURE, EXIT_OK, MARKERS_TOPIC, MODES,
+from .common import (CLOCK_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MARKERS_TOPIC, MODES,
                      RECORDER_PROGRESS_TOPIC, RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError,
-                     agent_status_topic, command_topic, odom_topic, parse_status, status_json)
+                     agent_status_topic, command_topic, dt_mismatch, odom_topic, parse_status, status_json)
 from .conversions import command_msg_type, msg_to_command, odom_to_cdr, time_msg
 from .executor import run_node
 from .markers import swarm_markers
-from .params import declare
+from .params import check_overrides, declare
 from .simulator_logic import SwarmSim, initial_state, initial_state_from_file, make_ground_truth
 
 __all__ = ['SimulatorNode', 'main']
@@ -70,9 +71,12 @@ class SimulatorNode(Node):
         publish_rate = declare(self, 'publish_rate', 20.0, 'realtime: odom and /clock rate in simulated Hz '
                                '(lockstep publishes every step)', float_range=(1e-3, 10_000.0))
         command_timeout = declare(self, 'command_timeout', 0.5, 'realtime: a command older than this many '
-                                  'simulated seconds counts as zero', float_range=(1e-6, 3600.0))
+                                  'simulated seconds stops the robot', float_range=(1e-6, 3600.0))
+        stop_limit = declare(self, 'stop_limit', 0.0, 'per-axis deceleration of a braking stop (lost or silent '
+                             "acceleration-commanded robot); the policy's command_limit (0: rest in one step)",
+                             float_range=(0.0, 1e9))
         self.lockstep_timeout = declare(self, 'lockstep_timeout', 5.0, 'lockstep: wall seconds to wait for an '
-                                        'agent before holding it at its last command', float_range=(1e-3, 3600.0))
+                                        'agent before stopping it (brake or zero velocity)', float_range=(1e-3, 3600.0))
         self.startup_timeout = declare(self, 'startup_timeout', 120.0, 'wall seconds to wait for every agent '
                                        '(and the recorder) to be ready', float_range=(1e-3, 86_400.0))
         self.republish_period = declare(self, 'republish_period', 0.5, 'wall seconds between re-publications '
@@ -95,6 +99,7 @@ class SimulatorNode(Node):
                                        'the log (0: none)', float_range=(0.0, 86_400.0))
         self.exit_when_done = declare(self, 'exit_when_done', True, 'exit after the last step (otherwise keep '
                                       'publishing the final state until stopped)')
+        check_overrides(self, sys.argv)
 
         if init:
             z0, path, traj = initial_state_from_file(init, scenario, robots)
@@ -109,7 +114,7 @@ class SimulatorNode(Node):
             else:
                 gt = None
             origin = {'seed': seed}
-        self.sim = SwarmSim(scenario, z0, dt, mode, command_timeout, gt)
+        self.sim = SwarmSim(scenario, z0, dt, mode, command_timeout, gt, stop_limit)
         self.spec = spec
         self.mode = mode
         self.n = self.sim.n
@@ -213,8 +218,14 @@ class SimulatorNode(Node):
 
     def _on_agent_status(self, robot: int, msg: String) -> None:
         status = parse_status(msg.data)
-        if status is not None:
-            self.agent_ready[robot] = bool(status.get('ready'))
+        if status is None:
+            return
+        self.agent_ready[robot] = bool(status.get('ready'))
+        problem = dt_mismatch(status.get('dt'), self.sim.dt)
+        if problem and not self.finished.done():
+            # Each step would be integrated over a different time than the policy assumes: refuse.
+            self.get_logger().error(f"parameter 'dt': agent {robot} {problem}: stopping")
+            self._finish(EXIT_CONFIG)
 
     def _on_recorder_status(self, msg: String) -> None:
         status = parse_status(msg.data) or {}
@@ -246,7 +257,7 @@ class SimulatorNode(Node):
                     self.sim.declare_lost(lost)
                     self.get_logger().warning(
                         f'robot(s) {lost}: no command for step {self.sim.step} within {self.lockstep_timeout:g} s: '
-                        f'holding their last command and no longer waiting for them')
+                        f'stopping them (brake or zero velocity) and no longer waiting for them')
             self._lockstep_advance()
             if self.phase == 'running' and now - self._last_publish >= self.republish_period:
                 self._publish_frame()  # answers or frames went missing: send the current state again

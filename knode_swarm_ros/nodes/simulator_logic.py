@@ -7,11 +7,14 @@ each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step`
 
 * lockstep: a step advances once every live robot has answered the current step (a command
   stamped with the current state's stamp). A robot still silent ``lockstep_timeout`` wall
-  seconds after the step was published is declared lost: it keeps its last command (held, zero
-  if it never sent one) and is not waited for, until a command for the current step comes from
-  it again (it rejoins).
-* realtime: each step uses each robot's newest command (by stamp); one whose stamp is older
-  than ``command_timeout`` seconds of simulated time counts as zero.
+  seconds after the step was published is declared lost: it is stopped (below) and not waited
+  for, until a command for the current step comes from it again (it rejoins).
+* realtime: each step uses each robot's newest command (by stamp); a robot whose newest command
+  is older than ``command_timeout`` seconds of simulated time (or that never sent one) is stopped.
+
+Stopping follows DESIGN.md: a velocity-commanded robot gets zero velocity, an acceleration-
+commanded one brakes to rest at the saturated deceleration
+(:func:`knode_swarm_ros.core.saturation.stop_command` with ``stop_limit``); it never coasts.
 
 It also keeps the figures the benchmark reports: state-to-command latency (wall seconds from
 publishing a state to receiving the first command stamped with it) and command counters.
@@ -24,6 +27,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..core.rollout import zoh_step
+from ..core.saturation import stop_command
 from ..core.scenarios import Scenario, get_scenario
 from .common import MODES, ConfigError, percentiles, step_of, stamp_ns
 
@@ -119,7 +123,7 @@ class _Counters:
     stale: int = 0
     future: int = 0
     rejoined: int = 0
-    zeroed: int = 0        # realtime robot-steps whose command was too old (counted as zero)
+    zeroed: int = 0        # robot-steps stopped (lost in lockstep, command too old in realtime)
     lost_events: int = 0
 
 
@@ -133,10 +137,11 @@ class SwarmSim:
         mode: ``lockstep`` or ``realtime``.
         command_timeout: realtime: commands older than this (simulated seconds) count as zero.
         ground_truth: optional stepper (``step() -> [1, n, d]``) that replaces the commands.
+        stop_limit: per-axis deceleration limit of a braking stop (None or 0: rest in one step).
     """
 
     def __init__(self, scenario: str, z0, dt: float, mode: str = 'lockstep', command_timeout: float = 0.5,
-                 ground_truth=None):
+                 ground_truth=None, stop_limit: Optional[float] = None):
         self.spec: Scenario = get_scenario(scenario)
         z0 = np.array(z0, dtype=np.float64)
         if z0.ndim != 2 or z0.shape[1] != self.spec.state_dim or z0.shape[0] < 1:
@@ -152,6 +157,9 @@ class SwarmSim:
         self.mode = mode
         self.command_timeout_steps = float(command_timeout) / self.dt
         self.ground_truth = ground_truth
+        if stop_limit is not None and not (np.isfinite(stop_limit) and stop_limit >= 0):
+            raise ConfigError(f"parameter 'command_limit' must be >= 0, got {stop_limit}")
+        self.stop_limit = float(stop_limit) if stop_limit else None
         self.step = 0
         self.states = z0
         m = self.spec.command_dim
@@ -241,7 +249,7 @@ class SwarmSim:
         return self.waiting()
 
     def declare_lost(self, robots: Sequence[int]) -> None:
-        """Hold ``robots`` at their last command and stop waiting for them."""
+        """Stop ``robots`` (brake or zero velocity) and stop waiting for them."""
         for r in robots:
             if r not in self.lost:
                 self.lost.add(r)
@@ -256,13 +264,23 @@ class SwarmSim:
             command = self.commands.copy()
             if self.mode == 'realtime':
                 old = (self.command_step < 0) | (self.step - self.command_step > self.command_timeout_steps)
+            else:
+                old = np.zeros(self.n, dtype=bool)
+                old[sorted(self.lost)] = True
+            if old.any():
                 self.counters.zeroed += int(np.count_nonzero(old))
-                command[old] = 0.0
+                command[old] = self.stop_commands()[old]
             self.applied = command
             self.states = zoh_step(self.states, command, self.spec, self.dt)
         self.step += 1
         self.answered = set()
         return self.states
+
+    def stop_commands(self) -> np.ndarray:
+        """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
+        v = self.states[:, self.spec.velocity] if self.spec.command == 'acceleration' else \
+            np.zeros((self.n, self.spec.command_dim))
+        return stop_command(self.spec.command, v, self.stop_limit, self.dt)
 
     # --- reporting -----------------------------------------------------------------
     def report(self) -> Dict[str, Any]:

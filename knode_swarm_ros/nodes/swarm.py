@@ -5,7 +5,7 @@
 Starts the simulator, the recorder and one agent per robot (``python -m
 knode_swarm_ros.nodes.<node> --ros-args ...``) on a fresh ROS_DOMAIN_ID with localhost-only
 discovery, lets the simulator wait until every agent has heard every robot, runs, and stops
-every process (SIGINT, then SIGTERM, then SIGKILL) on completion, on Ctrl-C / SIGTERM, on a
+every process (SIGTERM, then SIGKILL) on completion, on Ctrl-C / SIGTERM, on a
 timeout, or when the simulator or the recorder dies. An agent that dies is reported (which,
 and why) and the swarm goes on without it (``--on-agent-exit stop`` stops instead); the exit
 status is then 3. Finally it prints the metrics of the recording and draws a figure.
@@ -28,7 +28,6 @@ import argparse
 import fcntl
 import json
 import os
-import random
 import re
 import selectors
 import shutil
@@ -50,7 +49,14 @@ PACKAGE = 'knode_swarm_ros'
 DOMAIN_RANGE = (30, 101)   # valid ids with the default port mapping, away from the default 0
 SHM_DIR = Path('/dev/shm')
 _SHM_RE = re.compile(r'^(sem\.)?(fastrtps|fastdds)_')
-_STOP_GRACE_S = (5.0, 3.0)   # after SIGINT, after SIGTERM (then SIGKILL)
+# SIGTERM first: the nodes treat it as Ctrl-C once running (the recorder saves), and a process
+# still importing ends silently (a SIGINT there could print a KeyboardInterrupt traceback).
+_STOP_SIGNALS = ((signal.SIGTERM, 8.0), (signal.SIGKILL, 10.0))
+#: The most robots any node accepts (the 'robots' parameter range of agent, simulator, recorder).
+MAX_ROBOTS = 10_000
+#: Private memory of one process, measured 2026-11-30 with the CPU build of torch (DESIGN.md):
+#: an agent about 330 MB; the simulator and the recorder (numpy, no torch) far less.
+AGENT_MB, NODE_MB = 330, 150
 _ECHO_RE = re.compile(r'\[(WARN|WARNING|ERROR|FATAL)\]|Traceback|error:', re.IGNORECASE)
 
 
@@ -92,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='agents evaluate a batch of 1 (faster; no bit-for-bit parity with core.rollout)')
     p.add_argument('--on-agent-exit', choices=('continue', 'stop'), default='continue',
                    help='when an agent process dies: go on without it (default) or stop the run')
-    p.add_argument('--domain-id', type=int, help=f'ROS_DOMAIN_ID (default: random in {DOMAIN_RANGE[0]}..'
+    p.add_argument('--domain-id', type=int, help=f'ROS_DOMAIN_ID (default: a free one, claimed, in {DOMAIN_RANGE[0]}..'
                    f'{DOMAIN_RANGE[1]})')
     p.add_argument('--figure', metavar='PNG', help='figure path (default: the recording with .png)')
     p.add_argument('--no-figure', action='store_true', help='do not draw a figure')
@@ -121,6 +127,43 @@ class Plan:
     domain_id: int
     args: argparse.Namespace
     policy_meta: Dict = field(default_factory=dict)
+    domain_claim: object = None  # held for the run (domains.DomainClaim) when the domain was drawn
+
+
+def _check_output_folder(option: str, given: str, folder: Path) -> None:
+    """``folder`` exists, or can be created (``run`` creates it once the whole plan is checked):
+    its nearest existing ancestor is a writable directory."""
+    if folder.is_dir():
+        return
+    ancestor = folder
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ConfigError(f'{option} {given}: cannot create folder {folder}: {ancestor} is not a folder')
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ConfigError(f'{option} {given}: cannot create folder {folder}: {ancestor} is not writable')
+
+
+def available_memory_mb() -> Optional[float]:
+    """MemAvailable of /proc/meminfo in MB (None where unknown)."""
+    try:
+        with open('/proc/meminfo') as fh:
+            for line in fh:
+                if line.startswith('MemAvailable:'):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _check_memory(robots: int) -> None:
+    """Refuse a swarm whose agent processes cannot fit in this machine's available memory."""
+    need = robots * AGENT_MB + 2 * NODE_MB
+    have = available_memory_mb()
+    if have is not None and need > have:
+        raise ConfigError(f'--robots {robots}: {robots} agent processes need about {need / 1024:.1f} GB '
+                          f'({AGENT_MB} MB each, measured with the CPU build of torch) but this machine has '
+                          f'{have / 1024:.1f} GB available; run fewer robots')
 
 
 def plan_run(args: argparse.Namespace) -> Plan:
@@ -128,8 +171,8 @@ def plan_run(args: argparse.Namespace) -> Plan:
     from ..core.scenarios import get_scenario
     if args.steps < 0:
         raise ConfigError(f'--steps must be >= 0, got {args.steps}')
-    if args.robots is not None and args.robots < 1:
-        raise ConfigError(f'--robots must be >= 1, got {args.robots}')
+    if args.robots is not None and not 1 <= args.robots <= MAX_ROBOTS:
+        raise ConfigError(f'--robots must be in 1..{MAX_ROBOTS} (the nodes\' limit), got {args.robots}')
     for name in ('rate', 'real_time_factor', 'state_timeout', 'lockstep_timeout', 'startup_timeout'):
         value = getattr(args, name)
         if not value > 0:
@@ -139,8 +182,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
     record = Path(args.record).expanduser().resolve()
     if record.suffix != '.npz':
         raise ConfigError(f'--record {args.record}: the trajectory file must end with .npz')
-    if not record.parent.is_dir():
-        raise ConfigError(f'--record {args.record}: folder {record.parent} does not exist')
+    _check_output_folder('--record', args.record, record.parent)
     scenario = args.scenario
     policy_path, meta = None, {}
     if args.ground_truth:
@@ -180,22 +222,35 @@ def plan_run(args: argparse.Namespace) -> Plan:
         robots = n
         args.init = f'{Path(path).resolve()}:{traj}'
     robots = robots or 10
+    if robots > MAX_ROBOTS:
+        raise ConfigError(f'--init {args.init} has {robots} robots; the nodes take at most {MAX_ROBOTS}')
+    if not args.ground_truth:
+        _check_memory(robots)
     if args.variant:
         from ..core import groundtruth
         if args.variant not in groundtruth.presets(scenario):
             raise ConfigError(f'--variant {args.variant!r}: known {scenario} variants are '
                               f"{', '.join(groundtruth.presets(scenario))}")
-    domain = args.domain_id if args.domain_id is not None else random.randint(*DOMAIN_RANGE)
+    claim = None
+    if args.domain_id is None:  # a free one: another swarm on this machine may hold one
+        from .domains import claim_domain
+        try:
+            claim = claim_domain(range(DOMAIN_RANGE[0], DOMAIN_RANGE[1] + 1))
+        except RuntimeError as exc:
+            raise ConfigError(f'{exc}; pass --domain-id') from None
+    domain = args.domain_id if claim is None else claim.domain_id
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain-id must be in 0..232, got {domain}')
     figure = None if args.no_figure else Path(args.figure).resolve() if args.figure else record.with_suffix('.png')
+    if figure is not None:
+        _check_output_folder('--figure', str(args.figure or figure), figure.parent)
     if args.log_dir:
         run_dir, temporary = Path(args.log_dir).resolve(), False
         run_dir.mkdir(parents=True, exist_ok=True)
     else:
         run_dir, temporary = Path(tempfile.mkdtemp(prefix='knode_swarm_')), True
     return Plan(scenario, robots, args.steps, args.mode, dt, d_cr, policy_path, record, figure, run_dir,
-                temporary, domain, args, meta)
+                temporary, domain, args, meta, claim)
 
 
 # --- parameter files -------------------------------------------------------------------
@@ -221,7 +276,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
            'ground_truth': gt, 'real_time_factor': float(a.real_time_factor), 'publish_rate': float(a.rate),
            'command_timeout': max(0.5, 3.0 / a.rate), 'lockstep_timeout': float(a.lockstep_timeout),
            'startup_timeout': float(a.startup_timeout), 'wait_for_agents': not gt, 'wait_for_recorder': True,
-           'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json')}
+           'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json'),
+           'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0)}
     rec = {'scenario': plan.scenario, 'robots': plan.robots, 'output': str(plan.record), 'dt': float(plan.dt),
            'bag': os.path.abspath(a.bag) if a.bag else '', 'use_sim_time': True}
     python = [sys.executable, '-m']
@@ -253,6 +309,9 @@ def child_environment(domain_id: int) -> Dict[str, str]:
 
 
 # --- processes -------------------------------------------------------------------------
+class _Interrupted(Exception):
+    """Ctrl-C / SIGTERM / SIGHUP reached the launcher (raised by Children.pump)."""
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         import ctypes
@@ -273,6 +332,8 @@ class Child:
     buffer: bytes = b''
     tail: List[str] = field(default_factory=list)
     reported: bool = False
+    marker: str = ''      # a log line fragment that says the process is past its checks
+    marked: bool = False
 
     @property
     def pid(self) -> int:
@@ -286,6 +347,8 @@ class Child:
         for raw in lines:
             line = raw.decode(errors='replace').rstrip()
             self.tail = (self.tail + [line])[-15:]
+            if self.marker and self.marker in line:
+                self.marked = True
             if self.echo == 'all' or (self.echo == 'problems' and _ECHO_RE.search(line)):
                 print(f'  [{self.name}] {line}', flush=True)
 
@@ -301,13 +364,17 @@ class Child:
         return f'exited with status {rc}'
 
 
+#: What each node logs once its parameters, files and policy have passed its checks.
+_STARTED = {'simulator': ' robots, ', 'recorder': ': recording ', 'agent': 'publishing '}
+
+
 def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Path, echo: str) -> Child:
     log_path = run_dir / f'{name}.log'
     proc = subprocess.Popen(list(cmd), env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=_die_with_parent,
                             cwd=str(run_dir))
     os.set_blocking(proc.stdout.fileno(), False)
-    return Child(name, proc, log_path, open(log_path, 'wb'), echo)
+    return Child(name, proc, log_path, open(log_path, 'wb'), echo, marker=_STARTED[name.split('_')[0]])
 
 
 class Children:
@@ -316,12 +383,15 @@ class Children:
     def __init__(self):
         self.items: Dict[str, Child] = {}
         self.selector = selectors.DefaultSelector()
+        self.interrupted = False  # set by the launcher's signal handler; pump() raises _Interrupted
 
     def add(self, child: Child) -> None:
         self.items[child.name] = child
         self.selector.register(child.proc.stdout, selectors.EVENT_READ, child)
 
     def pump(self, timeout: float) -> None:
+        if self.interrupted:
+            raise _Interrupted()
         if not self.selector.get_map():
             time.sleep(timeout)
             return
@@ -340,15 +410,15 @@ class Children:
         return [c for c in self.items.values() if c.proc.poll() is None]
 
     def stop(self, names: Optional[Sequence[str]] = None) -> List[str]:
-        """SIGINT, then SIGTERM, then SIGKILL to the (named) live processes; returns notes on
-        those that needed more than SIGINT."""
+        """SIGTERM, then SIGKILL to the (named) live processes; returns notes on those that
+        needed more than SIGTERM."""
         targets = [c for c in self.items.values() if (names is None or c.name in names)]
         notes = []
-        for sig, grace in zip((signal.SIGINT, signal.SIGTERM, signal.SIGKILL), (*_STOP_GRACE_S, 10.0)):
+        for n, (sig, grace) in enumerate(_STOP_SIGNALS):
             live = [c for c in targets if c.proc.poll() is None]
             if not live:
                 break
-            if sig != signal.SIGINT:
+            if n:
                 notes.append(f'{", ".join(c.name for c in live)} did not stop in time: sending {sig.name}')
             for c in live:
                 try:
@@ -525,22 +595,25 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
 
 
 # --- the run ---------------------------------------------------------------------------
-class _Interrupted(Exception):
-    pass
 
 
 def run(plan: Plan) -> int:
     """Start, supervise and stop the processes of ``plan``; returns the exit status."""
     a = plan.args
+    plan.record.parent.mkdir(parents=True, exist_ok=True)  # checked by plan_run (a fresh clone has no out/)
     env = child_environment(plan.domain_id)
     commands = node_commands(plan)
     shm_before = shm_snapshot()
+    record_before = _file_identity(plan.record)
     children = Children()
     stop_reason = {'signal': None}
 
     def on_signal(signum, _frame):
+        # Only a flag: a signal handler that raises can have its exception swallowed (an at-fork
+        # hook of the logging module runs pending handlers while a child is started and ignores
+        # what they raise, measured) or raised in the forked child. Children.pump raises it.
         stop_reason['signal'] = signum
-        raise _Interrupted()
+        children.interrupted = True
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     code = EXIT_OK
@@ -555,23 +628,25 @@ def run(plan: Plan) -> int:
             else:
                 _say(f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
                      f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})')
-            for name, cmd in commands.items():
-                echo = 'none' if a.quiet else 'problems' if name.startswith('agent_') else 'all'
-                children.add(start_child(name, cmd, env, plan.run_dir, echo))
+            failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
             (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
-            agents = [n for n in pids if n.startswith('agent_')]
-            _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
-                 + (f', {len(agents)} agents (pids {pids[agents[0]]}..{pids[agents[-1]]})' if agents else '')
-                 + ': waiting until every agent has heard every robot')
-            code = _supervise(plan, children, lost_agents, t0)
+            if failed is not None:
+                code = failed
+            else:
+                agents = [n for n in pids if n.startswith('agent_')]
+                _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
+                     + (f', {len(agents)} agents (pids {pids[agents[0]]}..{pids[agents[-1]]})' if agents else '')
+                     + ': waiting until every agent has heard every robot')
+                code = _supervise(plan, children, lost_agents, t0)
         except _Interrupted:
             name = signal.Signals(stop_reason['signal']).name
             _say(f'{name}: stopping every process (the recorder saves what it has)')
             code = EXIT_INTERRUPTED
-        # Stop whatever still runs; the recorder first waits for nothing: SIGINT makes it save.
+        # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        children.interrupted = False
         for note in children.stop():
             _say(note)
     finally:
@@ -586,12 +661,61 @@ def run(plan: Plan) -> int:
             _say(f'removed {len(removed)} FastDDS shared-memory file(s) left by killed processes')
     _say(f'every process has stopped ({time.monotonic() - t0:.1f} s in all)')
     if code in (EXIT_OK, EXIT_AGENT_LOST, EXIT_INTERRUPTED):
-        summarise(plan)
+        if _file_identity(plan.record) != record_before:
+            summarise(plan)
+        elif record_before is not None:
+            _say(f'no recording was written in this run: {plan.record} is an earlier file, left as it was '
+                 '(not summarised)')
+        else:
+            _say('no recording was written in this run')
     if lost_agents and code == EXIT_OK:
         code = EXIT_AGENT_LOST
     if lost_agents:
         _say(f'agent process(es) died during the run: {"; ".join(lost_agents)}')
     return code
+
+
+def _file_identity(path: Path):
+    """(inode, size, mtime) of ``path``, None when absent: the recorder replaces the file
+    atomically, so any write of this run changes it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children,
+                     t0: float) -> Optional[int]:
+    """Start the simulator and the recorder, then one agent, then the others, each stage once the
+    previous one is past its checks (its log says so): a refused parameter or file stops the run
+    before hundreds of agents load torch. Returns an exit status when a stage failed."""
+    a = plan.args
+    names = list(commands)
+    agents = [n for n in names if n.startswith('agent_')]
+    stages = [[n for n in names if not n.startswith('agent_')]] + ([agents[:1]] if agents else [])
+    for stage in stages + [agents[1:]]:
+        for name in stage:
+            echo = 'none' if a.quiet else 'problems' if name.startswith('agent_') else 'all'
+            children.add(start_child(name, commands[name], env, plan.run_dir, echo))
+        if stage is not stages[-1] and stage is not stages[0]:
+            break  # the last agents are supervised with the rest of the run
+        waiting = [children.items[n] for n in stage]
+        while any(not c.marked for c in waiting):
+            children.pump(0.1)
+            for c in waiting:
+                if c.proc.poll() is not None and not c.marked:
+                    c.reported = True
+                    last = [line for line in c.tail if line.strip()][-3:]
+                    detail = (' -- last output: ' + ' | '.join(last)) if last else ''
+                    _say(f'the {c.name} (pid {c.pid}) {c.how_it_ended()} while starting{detail}: nothing else '
+                         'is started')
+                    return EXIT_CONFIG if c.proc.returncode == EXIT_CONFIG else EXIT_FAILURE
+            if time.monotonic() - t0 > a.startup_timeout:
+                late = [c.name for c in waiting if not c.marked]
+                _say(f'{", ".join(late)} not started after --startup-timeout {a.startup_timeout:g} s: stopping')
+                return EXIT_FAILURE
+    return None
 
 
 def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float) -> int:

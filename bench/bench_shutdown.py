@@ -1,0 +1,161 @@
+"""Shutdown under traffic (issue 10, "Done when"): agent, simulator and recorder each stopped
+with SIGINT or SIGTERM (alternating) while messages flow, REPS times each.
+
+    python bench/bench_shutdown.py              # 50 times each (about 10 minutes on 2 cores)
+    python bench/bench_shutdown.py --reps 10 --nodes agent
+
+For every stop it records the exit status, the wall time from the signal to the process's exit,
+and the FastDDS shared-memory files of this run's domain left behind (a port of the domain, or
+a lock file nobody holds that appeared while the node ran). Traffic: a realtime simulator of 3
+robots at 20 Hz on a claimed domain (the agent under test is robot 0 and publishes commands;
+the recorder records the 3 robots); the simulator under test publishes its own 3 robots. A node
+is signalled once it reports ready (heard every robot / running), after a random 0-0.3 s.
+
+Prints, per node: clean exits (status 0), exits within 2 s, stops with leftovers, and the
+stop time p50 / max, with the command line and the machine.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from knode_swarm_ros.nodes import swarm  # noqa: E402
+from knode_swarm_ros.nodes.domains import claim_domain  # noqa: E402
+
+ROBOTS = 3
+READY = {'agent': 'heard all 3 robots: ready', 'simulator': ': running', 'recorder': 'heard all 3 robots: ready'}
+
+
+def _env(domain: int):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1', PYTHONPATH=str(REPO))
+    return env
+
+
+def _node(name, args, env, log):
+    return subprocess.Popen([sys.executable, '-m', f'knode_swarm_ros.nodes.{name}', '--ros-args', *args],
+                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+SIM_ARGS = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
+            '-p', 'publish_rate:=20.0']
+
+
+def _leftovers(before: set, ports: bool = True):
+    """FastDDS files that appeared since ``before`` and that no live process holds (the rule of
+    swarm.shm_cleanup: a segment or port whose lock file is unlocked or gone). With ``ports``
+    False, port files are left out: a port is shared with the live peers (the traffic simulator
+    keeps the port it sent to; the next participant reuses it), so only the end of a series,
+    after every peer has gone, can tell a leaked port. Another user's process killed in the same
+    window would count too: run on a quiet machine to be sure."""
+    left = []
+    for name in sorted(swarm.shm_snapshot() - before):
+        if not ports and 'fastrtps_port' in name:
+            continue
+        base = name[4:-6] if name.startswith('sem.') and name.endswith('_mutex') else \
+            name[:-3] if name.endswith(('_el', '_sl')) else name
+        locks = [swarm.SHM_DIR / f'{base}{tail}' for tail in ('_el', '_sl')]
+        if not any(lock.exists() and swarm._locked(lock) for lock in locks) and (swarm.SHM_DIR / name).exists():
+            left.append(name)
+    return left
+
+
+def one_stop(name, args, env, domain, sig, tmp: Path, rng):
+    log_path = tmp / f'{name}.log'
+    before = swarm.shm_snapshot()
+    with open(log_path, 'wb') as log:
+        proc = _node(name, args, env, log)
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and proc.poll() is None and READY[name] not in log_path.read_text(errors='replace'):
+        time.sleep(0.02)
+    if proc.poll() is not None:
+        return {'rc': proc.returncode, 'stop_s': None, 'left': [], 'note': 'exited before ready:\n'
+                + log_path.read_text(errors='replace')[-2000:]}
+    time.sleep(rng.uniform(0.0, 0.3))
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        rc = proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        rc = proc.wait()
+    stop_s = time.monotonic() - t0
+    time.sleep(0.2)  # let a dying participant's files go
+    text = log_path.read_text(errors='replace')
+    note = text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
+    return {'rc': rc, 'stop_s': stop_s, 'left': _leftovers(before, ports=False), 'note': note}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--reps', type=int, default=50)
+    ap.add_argument('--nodes', default='agent,simulator,recorder')
+    ap.add_argument('--seed', type=int, default=0)
+    a = ap.parse_args(argv)
+    rng = random.Random(a.seed)
+    claim = claim_domain(range(30, 102))
+    domain = claim.domain_id
+    env = _env(domain)
+    tmp = Path(tempfile.mkdtemp(prefix='bench_shutdown_'))
+    import torch
+    from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+    torch.manual_seed(0)
+    policy = KNODEPolicy(PolicyConfig('flock2d', **DEFAULTS['flock2d']))
+    policy_path = tmp / 'flock2d.pt'
+    export_policy(policy, policy_path, policy.metadata())
+    print(f'# bench_shutdown {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, '
+          f'load {os.getloadavg()[0]:.1f}), ROS_DOMAIN_ID {domain}; command: '
+          f'{" ".join([sys.executable] + sys.argv)}', flush=True)
+    results = {}
+    for name in a.nodes.split(','):
+        traffic = None
+        if name != 'simulator':
+            traffic = _node('simulator', SIM_ARGS, env, open(tmp / 'traffic.log', 'wb'))
+        args = {'agent': ['-p', 'id:=0', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy_path}',
+                          '-p', 'use_sim_time:=true'],
+                'simulator': SIM_ARGS,
+                'recorder': ['-p', f'robots:={ROBOTS}', '-p', f'output:={tmp / "rec.npz"}',
+                             '-p', 'use_sim_time:=true']}[name]
+        rows = []
+        series_before = swarm.shm_snapshot()
+        try:
+            for i in range(a.reps):
+                sig = signal.SIGINT if i % 2 == 0 else signal.SIGTERM
+                row = one_stop(name, args, env, domain, sig, tmp, rng)
+                rows.append(row)
+                if row['note'] or row['left']:
+                    print(f'  {name} #{i} {sig.name}: rc {row["rc"]}, left {row["left"]}\n{row["note"]}', flush=True)
+        finally:
+            if traffic is not None:
+                traffic.send_signal(signal.SIGINT)
+                traffic.wait(timeout=30)
+        time.sleep(0.5)
+        series_left = _leftovers(series_before)
+        times = sorted(r['stop_s'] for r in rows if r['stop_s'] is not None)
+        results[name] = rows
+        clean = sum(r['rc'] == 0 for r in rows)
+        fast = sum(r['rc'] == 0 and r['stop_s'] is not None and r['stop_s'] <= 2.0 for r in rows)
+        left = sum(bool(r['left']) for r in rows)
+        p50 = times[len(times) // 2] if times else float('nan')
+        print(f'{name:9s}: exit 0 {clean}/{len(rows)}, exit 0 within 2 s {fast}/{len(rows)}, '
+              f'stops leaving shm segments {left}/{len(rows)}, shm files left after the series '
+              f'{len(series_left)}, stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
+              + (f' (left: {series_left[:6]})' if series_left else ''), flush=True)
+    claim.release()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

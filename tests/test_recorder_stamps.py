@@ -1,0 +1,76 @@
+"""Issue 10, item 4: the recorder applies the agents' checks to every stamp (age, step grid,
+finiteness), so a hostile or stale message can neither invent frames nor lose the recording."""
+import numpy as np
+
+from knode_swarm_ros.nodes.recorder_logic import FrameCollector, swarm_metrics
+
+DT = 0.01
+NS = 1_000_000_000
+
+
+def _run(fc, steps, every=1, n=3, clock=True):
+    """A clean run: every robot at steps 0, every, 2 every, ... stamped exactly."""
+    rng = np.random.default_rng(0)
+    truth = {}
+    for s in range(0, steps + 1, every):
+        frame = rng.normal(size=(n, 4))
+        truth[s] = frame
+        for r in range(n):
+            stamp = int(round(s * DT * NS))
+            assert fc.receive(r, stamp, frame[r], stamp if clock else None) == 'accepted'
+    return truth
+
+
+def test_a_negative_stamp_is_dropped_and_the_file_is_still_written(tmp_path):
+    fc = FrameCollector('flock2d', 3, DT)
+    fc.set_every(5)
+    truth = _run(fc, 100, every=5)
+    # one state stamped -0.03 s, on the dt grid but before the run, off the publishing grid
+    assert fc.receive(1, int(-0.03 * NS), np.zeros(4), 100 * int(DT * NS)) == 'too_old'
+    states, info = fc.build(5)
+    assert info['first_step'] == 0 and states.shape[0] == 21 and info['incomplete_frames'] == 0
+    assert np.array_equal(states[-1], truth[100])
+
+
+def test_stale_stamps_cannot_invent_frames():
+    fc = FrameCollector('flock2d', 3, DT)
+    truth = _run(fc, 2000)
+    for i in range(20):
+        assert fc.receive(i % 3, int(-1000 * NS), np.ones(4), 2000 * int(DT * NS)) == 'too_old'
+    states, info = fc.build(1)
+    assert states.shape[0] == 2001 and info['filled_entries'] == 0
+    a, m = swarm_metrics(states[-1], 'flock2d')
+    assert (a, m) == swarm_metrics(truth[2000], 'flock2d')
+    assert fc.counters['too_old'] == 20
+
+
+def test_without_a_clock_the_newest_stamp_is_the_reference():
+    fc = FrameCollector('flock2d', 2, DT, max_age=5.0)
+    _run(fc, 100, n=2, clock=False)
+    assert fc.receive(0, int(-1000 * NS), np.ones(4)) == 'too_old'
+    assert fc.receive(0, int(1000 * NS), np.ones(4)) == 'too_future'
+    assert fc.receive(0, int(0.5 * NS), np.ones(4)) == 'duplicate'  # within the window: filed normally
+    assert fc.build(1)[0].shape[0] == 101
+
+
+def test_future_off_grid_and_non_finite_stamps_are_dropped_and_counted():
+    fc = FrameCollector('flock2d', 2, DT, future_tolerance=0.5)
+    _run(fc, 10, n=2)
+    now = int(0.1 * NS)
+    assert fc.receive(0, int(1000 * NS), np.ones(4), now) == 'too_future'
+    assert fc.receive(0, int(0.115 * NS), np.ones(4), now) == 'off_grid'
+    assert fc.receive(0, int(0.11 * NS), np.array([np.nan, 0, 0, 0]), now) == 'non_finite'
+    assert fc.counters['too_future'] == fc.counters['off_grid'] == fc.counters['non_finite'] == 1
+    assert fc.build(1)[0].shape[0] == 11
+
+
+def test_a_stray_frame_off_the_publishing_grid_does_not_shift_the_grid(tmp_path):
+    fc = FrameCollector('flock2d', 3, DT)
+    fc.set_every(5)
+    truth = _run(fc, 50, every=5)
+    # a legal stamp (on the dt grid, in the clock window) but at step 2, off the every-5 grid
+    assert fc.receive(0, int(0.02 * NS), np.ones(4), int(0.5 * NS)) == 'accepted'
+    states, info = fc.build(5)
+    assert info['first_step'] == 0 and states.shape[0] == 11
+    assert np.array_equal(states[3], truth[15])
+    assert fc.progress == 50
