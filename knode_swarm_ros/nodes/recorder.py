@@ -187,7 +187,7 @@ class RecorderNode(Node):
         self.saved_path = self.output
         if self.bag:
             # The same topics and messages a rosbag2 recording of the run would hold.
-            from .bag_writer import write_odometry_bag
+            from ..bag import write_odometry_bag
             write_odometry_bag(self.bag, states, self.dt * info['frame_every'], self.scenario, overwrite=True)
             self.get_logger().info(f'wrote the bag {self.bag}')
         a0, m0 = swarm_metrics(states[0], self.scenario)
