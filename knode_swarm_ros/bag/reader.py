@@ -60,7 +60,7 @@ class Bag:
         culprit, cause = _broken_file(self.files)
         if culprit is None:
             culprit, cause = self.path, _describe(exc)
-        return BagError(f"{culprit}: {what} ({cause}); the bag is truncated or corrupt")
+        return BagError(f"{culprit}: truncated or corrupt: {what} ({cause})")
 
     def topics(self) -> Dict[str, str]:
         """``{topic: message type}`` (``pkg/msg/Type``; ROS 1 names normalised by rosbags)."""
@@ -82,7 +82,7 @@ class Bag:
         """Decoded messages of ``topics``: ``(bag path, topic, type, log_time_ns, message)`` in
         log-time order."""
         wanted = set(topics)
-        topic = "?"
+        topic = None
         try:
             with self._reader() as reader:
                 connections = [c for c in reader.connections if c.topic in wanted]
@@ -97,7 +97,8 @@ class Bag:
         except GeneratorExit:
             raise
         except Exception as exc:  # noqa: BLE001 - any failure of the third-party parser is a bad file
-            raise self._fail(exc, f"cannot decode the messages (last topic {topic})") from None
+            where = "" if topic is None else f" after a message on {topic}"
+            raise self._fail(exc, f"cannot decode the messages{where}") from None
 
 
 def _broken_file(files: Sequence[Path]) -> Tuple[Optional[Path], Optional[str]]:
