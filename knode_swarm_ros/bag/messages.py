@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import numpy as np
 
@@ -116,31 +116,34 @@ def typestore():
 _NUMPY = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8,
           "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64,
           "uint64": np.uint64, "float32": np.float32, "float64": np.float64}
+_PYTHON = {"string": str, "bool": bool, "float32": float, "float64": float}
 
 
-def _default(kind, spec) -> Any:
-    """The value of an unset field, as a ROS message constructor leaves it (zero, empty)."""
-    from rosbags.typesys.base import Nodetype
-    if kind == Nodetype.NAME:
-        return {}
-    if kind == Nodetype.BASE:
-        return "" if spec[0] == "string" else 0
-    (sub_kind, sub_spec), length = spec
-    return [_default(sub_kind, sub_spec) for _ in range(length if kind == Nodetype.ARRAY else 0)]
+def _converter(store, kind: int, spec) -> Tuple[Callable[[Any], Any], Callable[[], Any]]:
+    """(build a field value from a dict/object value, the default of an unset field) for one field
+    type: what a ROS message constructor leaves unset is zero or empty."""
+    if kind == 2:                                   # Nodetype.NAME: a nested message
+        return (lambda v, t=spec: to_message(t, v, store)), (lambda t=spec: to_message(t, {}, store))
+    if kind == 1:                                   # Nodetype.BASE
+        cast = _PYTHON.get(spec[0], int)
+        return cast, (lambda: cast())
+    (sub_kind, sub_spec), length = spec             # Nodetype.ARRAY (3) / SEQUENCE (4)
+    size = length if kind == 3 else 0
+    if sub_kind == 1 and sub_spec[0] in _NUMPY:
+        dtype = _NUMPY[sub_spec[0]]
+        return (lambda v: np.asarray(v, dtype=dtype)), (lambda: np.zeros(size, dtype=dtype))
+    build, default = _converter(store, sub_kind, sub_spec)
+    return (lambda v: [build(x) for x in v]), (lambda: [default() for _ in range(size)])
 
 
-def _build(store, kind, spec, value: Any) -> Any:
-    from rosbags.typesys.base import Nodetype
-    if kind == Nodetype.NAME:
-        return to_message(spec, value, store)
-    if kind == Nodetype.BASE:
-        base = spec[0]
-        return str(value) if base == "string" else (bool(value) if base == "bool" else
-                                                   _NUMPY[base](value).item())
-    (sub_kind, sub_spec), _ = spec           # ARRAY / SEQUENCE
-    if sub_kind == Nodetype.BASE and sub_spec[0] in _NUMPY:
-        return np.asarray(value, dtype=_NUMPY[sub_spec[0]])
-    return [_build(store, sub_kind, sub_spec, v) for v in value]
+@functools.lru_cache(maxsize=None)
+def _plan(store, type_name: str):
+    """(message class, [(field, build, default)], field names) of ``type_name``, built once."""
+    if type_name not in store.fielddefs:
+        raise BagWriteError(f"no message definition for {type_name}")
+    _, fields = store.fielddefs[type_name]
+    plan = [(name, *_converter(store, kind, spec)) for name, (kind, spec) in fields]
+    return store.types[type_name], plan, frozenset(name for name, _, _ in plan)
 
 
 def to_message(type_name: str, value: Any, store=None) -> Any:
@@ -148,26 +151,19 @@ def to_message(type_name: str, value: Any, store=None) -> Any:
     zero or empty, as in a ROS message constructor; an unknown key is an error naming it), or an
     object with the fields (e.g. an rclpy message), nested alike."""
     store = store or typestore()
-    if type(value).__name__ == type_name.replace("/", "__"):
+    cls, plan, names = _plan(store, type_name)
+    if isinstance(value, cls):
         return value
-    cls = store.types[type_name]
-    _, fields = store.fielddefs[type_name]
-    if isinstance(value, Mapping):
-        unknown = sorted(set(value) - {name for name, _ in fields})
-        if unknown:
+    if isinstance(value, dict):
+        if not value.keys() <= names:
+            unknown = sorted(set(value) - names)
             raise BagWriteError(f"{type_name} has no field {unknown[0]!r} (fields: "
-                                f"{', '.join(name for name, _ in fields)})")
-    kwargs = {}
-    for name, (kind, spec) in fields:
-        if isinstance(value, Mapping):
-            raw = value.get(name, _default(kind, spec))
-        else:
-            try:
-                raw = getattr(value, name)
-            except AttributeError:
-                raise BagWriteError(f"{type_name}: field {name!r} is missing from the message") from None
-        kwargs[name] = _build(store, kind, spec, raw)
-    return cls(**kwargs)
+                                f"{', '.join(name for name, _, _ in plan)})")
+        return cls(**{name: build(value[name]) if name in value else default() for name, build, default in plan})
+    try:
+        return cls(**{name: build(getattr(value, name)) for name, build, _ in plan})
+    except AttributeError as exc:
+        raise BagWriteError(f"{type_name}: a field is missing from the message ({exc})") from None
 
 
 # --- reading: robot poses out of decoded messages ---------------------------------------------------
