@@ -248,11 +248,13 @@ def test_project_bags_read_back_by_rosbags_message_for_message_with_their_qos(tm
                     assert conn.digest == typestore().hash_rihs01(ODOMETRY)
             for conn, log_ns, raw in reader.messages():
                 msg = reader.deserialize(raw, conn.msgtype)
-                i = [2, 5, 7].index(int(conn.topic.split("_")[1].split("/")[0]))
+                rid = int(conn.topic.split("_")[1].split("/")[0])
+                i = [2, 5, 7].index(rid)
                 t = int(round((stamp_to_ns(msg.header.stamp) - START_NS - i * 1_000) / 10_000_000))
                 assert log_ns == stamp_to_ns(msg.header.stamp) == stamps[t, i]
-                want = odometry_message("boids3d", states[t, i], int(stamps[t, i]), [2, 5, 7][i], velocity=vel[t, i])
-                assert msg.header.frame_id == want["header"]["frame_id"] and msg.child_frame_id == f"robot_{[2, 5, 7][i]}"
+                want = odometry_message("boids3d", states[t, i], int(stamps[t, i]), rid, velocity=vel[t, i])
+                assert msg.header.frame_id == want["header"]["frame_id"] == "world"
+                assert msg.child_frame_id == want["child_frame_id"] == f"robot_{rid}"
                 for c in "xyz":
                     assert getattr(msg.pose.pose.position, c) == want["pose"]["pose"]["position"][c]
                     assert getattr(msg.twist.twist.linear, c) == want["twist"]["twist"]["linear"][c]
