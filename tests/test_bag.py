@@ -19,7 +19,8 @@ pytest.importorskip("rosbags")
 
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.rosbag1 import Writer as Ros1Writer  # noqa: E402
-from rosbags.rosbag2 import Reader as Ros2Reader, StoragePlugin, Writer as Ros2Writer  # noqa: E402
+from rosbags.rosbag2 import (CompressionFormat, CompressionMode, Reader as Ros2Reader,  # noqa: E402
+                             StoragePlugin, Writer as Ros2Writer)
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from knode_swarm_ros.bag import (ODOMETRY, POSE_STAMPED, TF_MESSAGE, BagWriteError, BagWriter,  # noqa: E402
@@ -44,7 +45,8 @@ def run(capsys, *argv):
 
 def write_with_rosbags(path: Path, fmt: str, messages):
     """Write ``[(topic, type, dict, log_ns)]`` with rosbags' own writers: ``fmt`` sqlite3 | mcap
-    (rosbag2, Jazzy definitions), humble (sqlite3 without definitions, metadata v5), ros1."""
+    (rosbag2, Jazzy definitions), humble (sqlite3 without definitions, metadata v5), zstd (mcap,
+    the whole file zstd-compressed: ``compression_mode: file``), ros1."""
     if fmt == "ros1":
         store = get_typestore(Stores.ROS1_NOETIC)
         with Ros1Writer(path) as writer:
@@ -55,8 +57,11 @@ def write_with_rosbags(path: Path, fmt: str, messages):
                 writer.write(conns[topic], ns, store.serialize_ros1(to_message(type_name, value, store), type_name))
         return path
     store = get_typestore(Stores.ROS2_JAZZY)
-    plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
-    with Ros2Writer(path, version=9, storage_plugin=plugin) as writer:
+    plugin = StoragePlugin.MCAP if fmt in ("mcap", "zstd") else StoragePlugin.SQLITE3
+    writer = Ros2Writer(path, version=9, storage_plugin=plugin)
+    if fmt == "zstd":
+        writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    with writer:
         conns = {}
         for topic, type_name, value, ns in messages:
             if topic not in conns:
@@ -80,7 +85,7 @@ def write_with_rosbags(path: Path, fmt: str, messages):
     return path
 
 
-FORMATS = {"sqlite3": "jazzy_db3", "humble": "humble_db3", "mcap": "mcap_bag", "ros1": "run.bag"}
+FORMATS = {"sqlite3": "jazzy_db3", "humble": "humble_db3", "mcap": "mcap_bag", "zstd": "zstd_bag", "ros1": "run.bag"}
 
 
 def header(ns, frame="world"):
@@ -116,7 +121,8 @@ def odometry_rep105(t, n):
 
 
 def test_every_format_imports_to_the_same_states(tmp_path, capsys):
-    """5 robots' Odometry at 50 Hz (REP 105 body twist) in each format: identical trajectories;
+    """5 robots' Odometry at 50 Hz (REP 105 body twist) in each format (sqlite3, Humble's sqlite3,
+    mcap, whole-file zstd mcap, ROS 1): identical trajectories;
     positions exact, velocities from the body twist exact, from differences within their bound."""
     n, t = 5, np.arange(101) * 0.02
     messages, p, v = odometry_rep105(t, n)
@@ -140,6 +146,7 @@ def test_every_format_imports_to_the_same_states(tmp_path, capsys):
         assert f.meta["t0_ns"] == START_NS
     assert results["ros1", "twist"].meta["bag"]["kind"] == "ROS 1 bag"
     assert results["humble", "twist"].meta["bag"]["files"] == ["humble_db3.db3"]
+    assert results["zstd", "twist"].meta["bag"]["files"] == ["zstd_bag.mcap.zstd"]
 
     # the same twist read as world-frame is not the velocity: the frame matters
     rc, _, err = run(capsys, tmp_path / FORMATS["ros1"], "--scenario", "flock2d", "--topics", "/robot_*/odom",

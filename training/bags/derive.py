@@ -6,9 +6,8 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.bag import BagError
+from knode_swarm_ros.bag import BagError, quaternion_to_heading, rotate_by_quaternion
 from knode_swarm_ros.core import get_scenario
-from knode_swarm_ros.nodes.orientation import quaternion_to_heading, rotate_by_quaternion
 
 from .options import ImportOptions
 from .robots import Robot
