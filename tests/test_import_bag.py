@@ -363,7 +363,7 @@ def test_a_recording_without_metadata_is_read_from_its_files_and_a_truncated_fil
         fh.truncate(last.stat().st_size // 3)
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/odom", "--rate", 50,
                        "--out", tmp_path / "cut2.npz")
-    assert rc == 2 and str(last) in err and "truncated or corrupt" in err, err
+    assert rc == 2 and str(last) in err and "not readable (truncated, corrupt" in err, err
     assert not (tmp_path / "cut2.npz").exists()
 
 

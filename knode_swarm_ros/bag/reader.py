@@ -60,7 +60,7 @@ class Bag:
         culprit, cause = _broken_file(self.files)
         if culprit is None:
             culprit, cause = self.path, _describe(exc)
-        return BagError(f"{culprit}: truncated or corrupt: {what} ({cause})")
+        return BagError(f"{culprit}: not readable (truncated, corrupt or an unsupported version): {what} ({cause})")
 
     def topics(self) -> Dict[str, str]:
         """``{topic: message type}`` (``pkg/msg/Type``; ROS 1 names normalised by rosbags)."""
