@@ -45,7 +45,7 @@ def run(capsys, *argv):
 
 def write_with_rosbags(path: Path, fmt: str, messages):
     """Write ``[(topic, type, dict, log_ns)]`` with rosbags' own writers: ``fmt`` sqlite3 | mcap
-    (rosbag2, Jazzy definitions), humble (sqlite3 without definitions, metadata v5), zstd (mcap,
+    (rosbag2, Jazzy definitions), humble / foxy (sqlite3 without definitions, metadata v5 / v4), zstd (mcap,
     the whole file zstd-compressed: ``compression_mode: file``), ros1."""
     if fmt == "ros1":
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -67,25 +67,33 @@ def write_with_rosbags(path: Path, fmt: str, messages):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, type_name, typestore=store)
             writer.write(conns[topic], ns, store.serialize_cdr(to_message(type_name, value, store), type_name))
-    if fmt == "humble":
-        # What Humble's rosbag2 leaves: no message definitions in the .db3 (schema 3), metadata
-        # version 5 without type hashes or distribution.
+    if fmt in ("humble", "foxy"):
+        # What Humble's (Foxy's) rosbag2 leaves: no message definitions in the .db3 (schema 3),
+        # metadata version 5 (4) without type hashes or distribution (nor per-file entries), QoS
+        # as one YAML string with integer policies.
+        qos = ("- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 2147483647\n"
+               "    nsec: 4294967295\n  lifespan:\n    sec: 2147483647\n    nsec: 4294967295\n  liveliness: 1\n"
+               "  liveliness_lease_duration:\n    sec: 2147483647\n    nsec: 4294967295\n"
+               "  avoid_ros_namespace_conventions: false")
         (db,) = path.glob("*.db3")
         with sqlite3.connect(db) as conn:
             conn.execute("DELETE FROM message_definitions")
             conn.execute("UPDATE schema SET schema_version = 3")
+            conn.execute("UPDATE topics SET offered_qos_profiles = ?, type_description_hash = ''", (qos,))
         meta = yaml.safe_load((path / "metadata.yaml").read_text())
         info = meta["rosbag2_bagfile_information"]
-        info["version"] = 5
-        info.pop("ros_distro", None)
+        info["version"] = 5 if fmt == "humble" else 4
+        for key in ("ros_distro", "custom_data") + (("files",) if fmt == "foxy" else ()):
+            info.pop(key, None)
         for t in info["topics_with_message_count"]:
             t["topic_metadata"].pop("type_description_hash", None)
-            t["topic_metadata"]["offered_qos_profiles"] = ""
+            t["topic_metadata"]["offered_qos_profiles"] = qos
         (path / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     return path
 
 
-FORMATS = {"sqlite3": "jazzy_db3", "humble": "humble_db3", "mcap": "mcap_bag", "zstd": "zstd_bag", "ros1": "run.bag"}
+FORMATS = {"sqlite3": "jazzy_db3", "humble": "humble_db3", "foxy": "foxy_db3", "mcap": "mcap_bag", "zstd": "zstd_bag",
+           "ros1": "run.bag"}
 
 
 def header(ns, frame="world"):
@@ -121,8 +129,8 @@ def odometry_rep105(t, n):
 
 
 def test_every_format_imports_to_the_same_states(tmp_path, capsys):
-    """5 robots' Odometry at 50 Hz (REP 105 body twist) in each format (sqlite3, Humble's sqlite3,
-    mcap, whole-file zstd mcap, ROS 1): identical trajectories;
+    """5 robots' Odometry at 50 Hz (REP 105 body twist) in each format (sqlite3, Humble's and Foxy's
+    sqlite3, mcap, whole-file zstd mcap, ROS 1): identical trajectories;
     positions exact, velocities from the body twist exact, from differences within their bound."""
     n, t = 5, np.arange(101) * 0.02
     messages, p, v = odometry_rep105(t, n)
@@ -273,6 +281,13 @@ def test_project_bags_read_back_by_rosbags_message_for_message_with_their_qos(tm
         assert seen == T * n
 
     meta = yaml.safe_load((tmp_path / "dir_bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    # the keys, in the order rosbag2 Jazzy's yaml.hpp encodes BagMetadata / TopicMetadata / FileInformation
+    assert list(meta) == ["version", "storage_identifier", "duration", "starting_time", "message_count",
+                          "topics_with_message_count", "compression_format", "compression_mode",
+                          "relative_file_paths", "files", "custom_data", "ros_distro"]
+    assert list(meta["topics_with_message_count"][0]["topic_metadata"]) == [
+        "name", "type", "serialization_format", "offered_qos_profiles", "type_description_hash"]
+    assert list(meta["files"][0]) == ["path", "starting_time", "duration", "message_count"]
     assert meta["version"] == 9 and meta["storage_identifier"] == "mcap" and meta["ros_distro"] == "jazzy"
     assert meta["relative_file_paths"] == ["dir_bag_0.mcap", "dir_bag_1.mcap", "dir_bag_2.mcap"]
     assert sum(f["message_count"] for f in meta["files"]) == meta["message_count"] == T * n
