@@ -375,3 +375,23 @@ def test_bag_messages_match_the_nodes_conversion_module():
                 assert v == pytest.approx(getattr(msg, c), abs=1e-15), (scenario, z, key, c)
         for c, v in ours["twist"]["twist"]["linear"].items():
             assert v == getattr(ref.twist.twist.linear, c)
+
+
+def test_writer_takes_ros_message_objects(tmp_path):
+    """BagWriter.write takes an rclpy message as it is (any object with the fields): what the
+    nodes publish goes into a bag unchanged."""
+    conv = pytest.importorskip("knode_swarm_ros.nodes.conversions")
+    z = np.array([0.5, -1.0, 2.0, 0.3, -0.4, 0.8])
+    ref = conv.state_to_odom(3, 2 * SEC + 5, z, "boids3d", velocity=np.array([1.0, 2.0, 3.0]))
+    path = tmp_path / "ros.mcap"
+    with BagWriter(path) as bag:
+        bag.write("/robot_3/odom", ODOMETRY, ref, 2 * SEC + 5)
+    with AnyReader([path]) as reader:
+        ((conn, log_ns, raw),) = list(reader.messages())
+        msg = reader.deserialize(raw, conn.msgtype)
+    assert log_ns == stamp_to_ns(msg.header.stamp) == 2 * SEC + 5 and msg.child_frame_id == ref.child_frame_id
+    for c in "xyzw":
+        assert getattr(msg.pose.pose.orientation, c) == getattr(ref.pose.pose.orientation, c)
+    for c in "xyz":
+        assert getattr(msg.pose.pose.position, c) == getattr(ref.pose.pose.position, c)
+        assert getattr(msg.twist.twist.linear, c) == getattr(ref.twist.twist.linear, c)

@@ -119,17 +119,18 @@ _NUMPY = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8,
 _PYTHON = {"string": str, "bool": bool, "float32": float, "float64": float}
 
 
-def _converter(store, kind: int, spec) -> Tuple[Callable[[Any], Any], Callable[[], Any]]:
+def _converter(store, kind, spec) -> Tuple[Callable[[Any], Any], Callable[[], Any]]:
     """(build a field value from a dict/object value, the default of an unset field) for one field
     type: what a ROS message constructor leaves unset is zero or empty."""
-    if kind == 2:                                   # Nodetype.NAME: a nested message
+    from rosbags.typesys.base import Nodetype
+    if kind == Nodetype.NAME:                       # a nested message
         return (lambda v, t=spec: to_message(t, v, store)), (lambda t=spec: to_message(t, {}, store))
-    if kind == 1:                                   # Nodetype.BASE
+    if kind == Nodetype.BASE:
         cast = _PYTHON.get(spec[0], int)
         return cast, (lambda: cast())
-    (sub_kind, sub_spec), length = spec             # Nodetype.ARRAY (3) / SEQUENCE (4)
-    size = length if kind == 3 else 0
-    if sub_kind == 1 and sub_spec[0] in _NUMPY:
+    (sub_kind, sub_spec), length = spec             # ARRAY (fixed length) or SEQUENCE
+    size = length if kind == Nodetype.ARRAY else 0
+    if sub_kind == Nodetype.BASE and sub_spec[0] in _NUMPY:
         dtype = _NUMPY[sub_spec[0]]
         return (lambda v: np.asarray(v, dtype=dtype)), (lambda: np.zeros(size, dtype=dtype))
     build, default = _converter(store, sub_kind, sub_spec)
