@@ -51,7 +51,8 @@ setup(
         ('share/' + PACKAGE_NAME, ['package.xml']),
     ] + _config_data_files(),
     install_requires=['numpy', 'pyyaml'],
-    extras_require={'test': ['pytest']},
+    # bag: reading and writing bags (knode_swarm_ros.bag): rosbags is pure Python, no ROS needed.
+    extras_require={'test': ['pytest'], 'bag': ['rosbags==0.11.9']},
     zip_safe=False,
     entry_points={
         'console_scripts': [

@@ -1,7 +1,8 @@
-"""rosbag2/MCAP importer (training.import_bag) and the ROS-free bag writer (nodes.bag_writer).
+"""The bag importer (training.import_bag) on bags written by the project's writer (knode_swarm_ros.bag).
 
-Bags are written here with mcap-ros2-support's writer (through knode_swarm_ros.nodes.bag_writer,
-whose message definitions come from the installed .msg files) and read back by the importer.
+Bags are written here as rosbag2 MCAP by knode_swarm_ros.bag (rosbags' writer, Jazzy's message
+definitions) and read back by the importer; tests/test_bag.py covers the other formats (sqlite3,
+ROS 1), broken bags and the writer itself.
 Tolerances are stated where they are used, each from the error bound of the numerics:
 
 * linear interpolation of a signal with |f''| <= A between samples h apart errs by at most
@@ -15,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import mcap_ros2  # noqa: F401  (the importer needs it: a broken install must fail, not skip)
+import rosbags  # noqa: F401  (the importer needs it: a broken install must fail, not skip)
 
 from knode_swarm_ros.core import load_trajectories
-from knode_swarm_ros.nodes.bag_writer import (ODOMETRY, POSE_STAMPED, TF_MESSAGE, BagWriter, heading_to_quaternion,
-                                              message_definition, ns_to_stamp, odometry_message, write_odometry_bag)
-from training.import_bag import main
+from knode_swarm_ros.bag import (ODOMETRY, POSE_STAMPED, TF_MESSAGE, BagWriter, ns_to_stamp,  # noqa: E402
+                                 odometry_message, write_odometry_bag)
+from knode_swarm_ros.nodes.orientation import heading_to_quaternion, quaternion_to_heading  # noqa: E402
+from training.import_bag import main  # noqa: E402
 
 SEC = 1_000_000_000
 
@@ -67,49 +69,7 @@ def flock_circles(t, n=3):
     return states
 
 
-# --- message definitions and the writer ---------------------------------------------------------------
-
-def test_message_definitions_come_from_the_installed_msg_files():
-    odom = message_definition(ODOMETRY)
-    share = Path(__import__("sys").prefix) / "share"
-    assert odom.startswith((share / "nav_msgs" / "msg" / "Odometry.msg").read_text().rstrip("\n"))
-    for dep in ("std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/PoseWithCovariance",
-                "geometry_msgs/Pose", "geometry_msgs/Point", "geometry_msgs/Quaternion",
-                "geometry_msgs/TwistWithCovariance", "geometry_msgs/Twist", "geometry_msgs/Vector3"):
-        assert odom.count("=" * 80 + f"\nMSG: {dep}\n") == 1, dep
-    tf = message_definition(TF_MESSAGE)     # tf2_msgs is not installed: embedded one-liner + real deps
-    assert tf.startswith("geometry_msgs/TransformStamped[] transforms\n") and "MSG: geometry_msgs/Transform\n" in tf
-
-
-def test_heading_quaternion_rotates_x_onto_the_heading():
-    rng = np.random.default_rng(0)
-    h = rng.normal(size=(50, 3))
-    h[0], h[1] = (-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)
-    from training.bagio import quaternion_to_heading
-    np.testing.assert_allclose(quaternion_to_heading(heading_to_quaternion(h)),
-                               h / np.linalg.norm(h, axis=1, keepdims=True), atol=1e-12)
-
-
-def test_bag_messages_match_the_nodes_conversion_module():
-    """bag_writer writes what knode_swarm_ros.nodes.conversions (which needs the ROS messages) publishes."""
-    from knode_swarm_ros.nodes import conversions as conv
-    rng = np.random.default_rng(4)
-    h = rng.normal(size=(40, 3))
-    h[:4] = [(-1.0, 0.0, 0.0), (1.0, 0.0, 0.0), (-0.3, 1e-9, 0.0), (0.0, 0.0, 0.0)]
-    cases = [("flock2d", np.array([1.5, -2.0, 0.0, 0.0]), None), ("flock2d", np.array([1.5, -2.0, -0.3, 0.7]), None)]
-    cases += [("boids3d", np.concatenate([rng.normal(size=3), hk]), rng.normal(size=3) if k % 2 else None)
-              for k, hk in enumerate(h)]
-    for scenario, z, vel in cases:
-        ours = odometry_message(scenario, z, 1_234_567_891_011, 7, velocity=vel)
-        ref = conv.state_to_odom(7, 1_234_567_891_011, z, scenario, velocity=vel)
-        assert ours["header"]["stamp"] == {"sec": ref.header.stamp.sec, "nanosec": ref.header.stamp.nanosec}
-        assert (ours["header"]["frame_id"], ours["child_frame_id"]) == (ref.header.frame_id, ref.child_frame_id)
-        for key, msg in (("position", ref.pose.pose.position), ("orientation", ref.pose.pose.orientation)):
-            for c, v in ours["pose"]["pose"][key].items():
-                assert v == pytest.approx(getattr(msg, c), abs=1e-15), (scenario, z, key, c)
-        for c, v in ours["twist"]["twist"]["linear"].items():
-            assert v == getattr(ref.twist.twist.linear, c)
-
+# --- round trips ------------------------------------------------------------------------------------
 
 def test_odometry_bag_round_trips_exactly_on_its_own_grid(tmp_path, capsys):
     """Same rate, no jitter: the importer returns the written states (boids3d via orientation,
@@ -287,7 +247,7 @@ def test_tf_frames_select_robots_by_child_frame(tmp_path, capsys):
     # without --frames a TF topic is refused with a hint
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/tf", "--rate", 50,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "--frames" in err and not (tmp_path / "x.npz").exists()
+    assert rc == 2 and "--frames" in err and not (tmp_path / "x.npz").exists()
 
 
 # --- topic patterns and id mapping ---------------------------------------------------------------------
@@ -335,7 +295,7 @@ def test_a_name_without_an_integer_needs_a_mapping(mixed_bag, tmp_path, capsys):
     path, _ = mixed_bag
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/vicon/*/pose", "--rate", 20,
                        "--out", tmp_path / "a.npz")
-    assert rc == 1 and "/vicon/wand/pose" in err and "--id-map" in err
+    assert rc == 2 and "/vicon/wand/pose" in err and "--id-map" in err
 
 
 # --- gaps -------------------------------------------------------------------------------------------
@@ -380,28 +340,30 @@ def test_a_silent_robot_splits_the_recording_and_short_segments_are_dropped(tmp_
 
 # --- recordings that were cut short, stamps, slow robots ------------------------------------------------
 
-def test_a_recording_cut_short_is_read_up_to_where_it_ends(tmp_path, capsys):
-    """A killed recorder leaves no metadata.yaml and a last file without summary or tail: the
-    files are read in name order, the last one front to back up to where it ends, with notes."""
+def test_a_recording_without_metadata_is_read_from_its_files_and_a_truncated_file_is_named(tmp_path, capsys):
+    """A killed recorder leaves no metadata.yaml: the storage files are read in name order, with a
+    note. A last file cut short (no MCAP footer) is refused (exit 2) naming that file: rosbags does
+    not read broken files, and guessing where a file broke would import a partial recording."""
     path = tmp_path / "cut"
     t = np.arange(201) * 0.02
     states = flock_circles(t, n=2)
-    with BagWriter(path, split_messages=250, chunk_size=4000) as bag:
-        for k, s in enumerate(t):
-            for i in range(2):
-                ns = round(s * SEC)
-                bag.write(f"/robot_{i}/odom", ODOMETRY, odometry_message("flock2d", states[k, i], ns, i), ns)
+    write_odometry_bag(path, states, 0.02, "flock2d", split_messages=250)
     (path / "metadata.yaml").unlink()
+    rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/odom", "--rate", 50,
+                       "--out", tmp_path / "cut.npz")
+    assert rc == 0, err
+    assert "no metadata.yaml; reading its 2 storage file(s) in name order" in out
+    f = load_trajectories(tmp_path / "cut.npz")
+    assert f.meta["messages"]["read"] == 402 and f.meta["bag"]["files"] == ["cut_0.mcap", "cut_1.mcap"]
+    np.testing.assert_allclose(f.states[0, :, :, :2], states[..., :2], atol=1e-12)
+
     last = path / "cut_1.mcap"
     with open(last, "r+b") as fh:
         fh.truncate(last.stat().st_size // 3)
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/odom", "--rate", 50,
-                       "--out", tmp_path / "cut.npz")
-    assert rc == 0, err
-    assert "no metadata.yaml" in out and "cut_1.mcap: file ends early" in out
-    f = load_trajectories(tmp_path / "cut.npz")
-    assert 250 < f.meta["messages"]["read"] < 402 and f.states.shape[1] > 125
-    np.testing.assert_allclose(f.states[0, :, :, :2], states[: f.states.shape[1], :, :2], atol=1e-12)
+                       "--out", tmp_path / "cut2.npz")
+    assert rc == 2 and str(last) in err and "not readable (truncated, corrupt" in err, err
+    assert not (tmp_path / "cut2.npz").exists()
 
 
 def test_zero_header_stamps_need_log_time_and_non_finite_samples_are_dropped(tmp_path, capsys):
@@ -416,7 +378,7 @@ def test_zero_header_stamps_need_log_time_and_non_finite_samples_are_dropped(tmp
                 bag.write(f"/robot_{i}/pose", POSE_STAMPED, pose_stamped(p, q, 0), round(s * SEC))
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/pose", "--rate", 20,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "/robot_0/pose" in err and "--stamp log" in err
+    assert rc == 2 and "/robot_0/pose" in err and "--stamp log" in err
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/pose", "--rate", 20,
                        "--stamp", "log", "--out", tmp_path / "x.npz")
     assert rc == 0, err
@@ -444,7 +406,7 @@ def test_slow_boids_hold_their_heading_and_a_robot_that_never_moves_has_none(tmp
     write_odometry_bag(tmp_path / "still.mcap", np.concatenate([p, h], axis=2), 0.02, "boids3d")
     rc, out, err = run(capsys, tmp_path / "still.mcap", "--scenario", "boids3d", "--topics", "/robot_*/odom",
                        "--rate", 50, "--out", tmp_path / "x.npz")
-    assert rc == 1 and "robot 1 (/robot_1/odom) never moves" in err and "--use-orientation" in err
+    assert rc == 2 and "robot 1 (/robot_1/odom) never moves" in err and "--use-orientation" in err
     rc, out, err = run(capsys, tmp_path / "still.mcap", "--scenario", "boids3d", "--topics", "/robot_*/odom",
                        "--rate", 50, "--use-orientation", "--out", tmp_path / "x.npz")
     assert rc == 0, err
@@ -464,15 +426,18 @@ def test_not_a_bag(tmp_path, capsys):
     text.write_text("hello\n")
     empty = tmp_path / "empty"
     empty.mkdir()
-    sqlite = tmp_path / "old"
-    sqlite.mkdir()
-    (sqlite / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  storage_identifier: sqlite3\n"
+    listed = tmp_path / "old"
+    listed.mkdir()
+    (listed / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  storage_identifier: sqlite3\n"
                                           "  relative_file_paths: [old_0.db3]\n")
-    for path, message in ((text, "not an MCAP file"), (empty, "no metadata.yaml and no .mcap files"),
-                          (tmp_path / "missing", "no such file or directory"), (sqlite, "only 'mcap' bags")):
+    misnamed = tmp_path / "run.db3"
+    misnamed.write_bytes(b"\x89MCAP0\r\n" + bytes(64))
+    for path, message in ((text, "not a bag file"), (empty, "no metadata.yaml and no .mcap, .db3 or .bag files"),
+                          (tmp_path / "missing", "no such file or directory"), (listed, "old_0.db3, which is missing"),
+                          (misnamed, "holds a mcap file but is named .db3")):
         rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "*", "--rate", 10,
                            "--out", tmp_path / "x.npz")
-        assert rc == 1 and message in err and str(path) in err and "nothing written" in err
+        assert rc == 2 and message in err and str(path) in err and "nothing written" in err, err
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -480,24 +445,24 @@ def test_unsupported_message_type_on_a_matched_topic(mixed_bag, tmp_path, capsys
     path, _ = mixed_bag
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_1/*", "--rate", 20,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "/robot_1/cmd_accel" in err and "geometry_msgs/msg/AccelStamped" in err
+    assert rc == 2 and "/robot_1/cmd_accel" in err and "geometry_msgs/msg/AccelStamped" in err
     assert not (tmp_path / "x.npz").exists()
 
 
 def test_a_pattern_that_matches_nothing_lists_the_topics(odom_bag, tmp_path, capsys):
     rc, out, err = run(capsys, odom_bag, "--scenario", "flock2d", "--topics", "/robot_*/pose", "--rate", 20,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "/robot_*/pose" in err and "matches no topic" in err and "/robot_0/odom" in err
+    assert rc == 2 and "/robot_*/pose" in err and "matches no topic" in err and "/robot_0/odom" in err
     rc, out, err = run(capsys, odom_bag, "--scenario", "flock2d", "--frames", "cf*", "--rate", 20,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "/tf" in err and "matches no topic" in err
+    assert rc == 2 and "/tf" in err and "matches no topic" in err
     assert not (tmp_path / "x.npz").exists()
 
 
 def test_a_mapped_robot_that_never_appears(odom_bag, tmp_path, capsys):
     rc, out, err = run(capsys, odom_bag, "--scenario", "flock2d", "--topics", "/robot_*/odom", "--rate", 20,
                        "--id-map", "/robot_0/odom=0", "--id-map", "/robot_9/odom=9", "--out", tmp_path / "x.npz")
-    assert rc == 1 and "robot 9" in err and "/robot_9/odom" in err and "never appears" in err
+    assert rc == 2 and "robot 9" in err and "/robot_9/odom" in err and "never appears" in err
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -513,7 +478,7 @@ def test_header_stamps_going_backwards(tmp_path, capsys):
                           stamps[k])
     rc, out, err = run(capsys, path, "--scenario", "flock2d", "--topics", "/robot_*/odom", "--rate", 20,
                        "--out", tmp_path / "x.npz")
-    assert rc == 1 and "/robot_1/odom" in err and "go backwards at message 17" in err
+    assert rc == 2 and "/robot_1/odom" in err and "go backwards at message 17" in err
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -527,11 +492,11 @@ def test_other_refusals_name_the_problem(odom_bag, mixed_bag, tmp_path, capsys):
     for args, message in cases:
         rc, out, err = run(capsys, args[0], "--scenario", "flock2d", "--rate", 20, "--out", tmp_path / "x.npz",
                            *args[1:])
-        assert rc == 1 and message in err, err
+        assert rc == 2 and message in err, err
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_the_module_exits_non_zero_and_writes_nothing(tmp_path):
+def test_the_module_exits_2_and_writes_nothing(tmp_path):
     import os
     import subprocess
     import sys
@@ -540,7 +505,7 @@ def test_the_module_exits_non_zero_and_writes_nothing(tmp_path):
                            "flock2d", "--topics", "*", "--rate", "10", "--out", str(tmp_path / "x.npz")],
                           cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True,
                           env=dict(os.environ), timeout=120)
-    assert proc.returncode == 1 and "not an MCAP file" in proc.stderr and not (tmp_path / "x.npz").exists()
+    assert proc.returncode == 2 and "not a bag file" in proc.stderr and not (tmp_path / "x.npz").exists()
 
 
 # --- round trip: ground truth -> MCAP bag -> import -> training ----------------------------------------

@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
 pytestmark = pytest.mark.ros
 

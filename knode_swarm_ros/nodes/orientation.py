@@ -14,7 +14,7 @@ from typing import Tuple
 
 import numpy as np
 
-__all__ = ["heading_to_quaternion", "quaternion_to_heading", "yaw_quaternion"]
+__all__ = ["heading_to_quaternion", "quaternion_to_heading", "yaw_quaternion", "rotate_by_quaternion"]
 
 
 def _shortest_arc(u: np.ndarray) -> np.ndarray:
@@ -54,3 +54,13 @@ def yaw_quaternion(vx: float, vy: float) -> Tuple[float, float, float, float]:
         return 0.0, 0.0, 0.0, 1.0
     half = 0.5 * math.atan2(vy, vx)
     return 0.0, 0.0, math.sin(half), math.cos(half)
+
+
+def rotate_by_quaternion(q, v) -> np.ndarray:
+    """Rotate vectors ``v [..., 3]`` by quaternions ``q [..., 4]`` (x, y, z, w; normalised first):
+    body -> world (e.g. a REP 105 Odometry twist into the world frame)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    u, w = q[..., :3], q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)

@@ -1,34 +1,26 @@
-"""One QoS profile per topic, used by its publisher and by every subscriber (DESIGN.md).
-
-* ``robot_<id>/odom``: :data:`ODOM`, reliable, volatile, keep last 200. Lockstep needs every
-  state; 200 frames (2 s at 100 steps/s) absorb a subscriber descheduled for a while.
-* ``robot_<id>/cmd_accel``, ``cmd_vel``: :data:`COMMAND`, reliable, volatile, keep last 20.
-  Every command counts in lockstep; only the newest matters in real time.
-* ``/clock``: :data:`CLOCK`, best effort, keep last 1: what rclpy's time source subscribes
-  with; only the newest time matters.
-* ``robot_<id>/agent_status``, ``simulator/status``, ``recorder/status``: :data:`STATUS`,
-  reliable, transient local, keep last 1: a late subscriber still gets the current state
-  (readiness, done, saved).
-* ``recorder/progress``: :data:`PROGRESS`, reliable, volatile, keep last 10: the simulator's
-  lockstep flow control.
-* ``recorder/avd``, ``recorder/amd``: :data:`METRICS`, reliable, volatile, keep last 10.
-* ``markers``: :data:`MARKERS`, reliable, volatile, keep last 1: RViz's default; only the
-  newest picture matters.
-"""
+"""The rclpy QoS profiles of the topics, one per topic (DESIGN.md), built from the ROS-free
+table :mod:`.qos_specs` (which says why each profile is what it is; the bags the project
+writes carry the same profiles)."""
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS']
+from . import qos_specs
+
+__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'profile']
+
+_RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {'volatile': DurabilityPolicy.VOLATILE, 'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
 
 
-def _profile(depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE):
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
-                      durability=durability)
+def profile(spec: qos_specs.QosSpec) -> QoSProfile:
+    """The rclpy profile of a :class:`~.qos_specs.QosSpec` (keep last ``depth``)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=spec.depth,
+                      reliability=_RELIABILITY[spec.reliability], durability=_DURABILITY[spec.durability])
 
 
-ODOM = _profile(200)
-COMMAND = _profile(20)
-CLOCK = _profile(1, reliability=ReliabilityPolicy.BEST_EFFORT)
-STATUS = _profile(1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-PROGRESS = _profile(10)
-METRICS = _profile(10)
-MARKERS = _profile(1)
+ODOM = profile(qos_specs.ODOM)
+COMMAND = profile(qos_specs.COMMAND)
+CLOCK = profile(qos_specs.CLOCK)
+STATUS = profile(qos_specs.STATUS)
+PROGRESS = profile(qos_specs.PROGRESS)
+METRICS = profile(qos_specs.METRICS)
+MARKERS = profile(qos_specs.MARKERS)

@@ -10,6 +10,7 @@ atomically) when the simulator reports ``done`` and every frame up to the final 
 """
 from __future__ import annotations
 
+import importlib.util
 import sys
 import time
 from functools import partial
@@ -51,7 +52,10 @@ class RecorderNode(Node):
         self.grace_period = declare(self, 'grace_period', 3.0, 'wall seconds to wait for missing frames after '
                                     'the simulator is done', float_range=(0.0, 3600.0))
         self.bag = declare(self, 'bag', '', 'also write the recorded odometry as a bag: an .mcap file, else a '
-                           'rosbag2 directory (needs the mcap packages of requirements-dev.txt)')
+                           'rosbag2 directory (needs the rosbags package: pip install knode_swarm_ros[bag])')
+        if self.bag and importlib.util.find_spec('rosbags') is None:
+            raise ConfigError(f"parameter 'bag' = {self.bag!r}: writing bags needs the rosbags package "
+                              "(pip install 'knode_swarm_ros[bag]')")
         metrics_rate = declare(self, 'metrics_rate', 5.0, 'avd/amd messages per wall second (0: none)',
                                float_range=(0.0, 1000.0))
         max_age = declare(self, 'max_age', 5.0, 'states stamped more than this many seconds before the clock '
@@ -206,7 +210,7 @@ class RecorderNode(Node):
         self.saved_path = self.output
         if self.bag:
             # The same topics and messages a rosbag2 recording of the run would hold.
-            from .bag_writer import write_odometry_bag
+            from ..bag import write_odometry_bag
             write_odometry_bag(self.bag, states, self.dt * info['frame_every'], self.scenario, overwrite=True)
             self.get_logger().info(f'wrote the bag {self.bag}')
         a0, m0 = swarm_metrics(states[0], self.scenario)
