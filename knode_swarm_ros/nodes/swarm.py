@@ -71,6 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000')
     p.add_argument('--mode', choices=MODES, default='lockstep', help='default lockstep')
     p.add_argument('--policy', help='TorchScript policy file (default: the shipped policy of the scenario)')
+    p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='auto',
+                   help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto")
     p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
     p.add_argument('--seed', type=int, default=0, help='seed of the initial state (without --init); default 0')
     p.add_argument('--record', metavar='OUT.npz', required=True, help='trajectory file to write')
@@ -232,7 +234,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
     if not gt:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
                  'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
-                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True}
+                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True,
+                 'policy_runtime': a.policy_runtime}
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
         for i in range(plan.robots):
             out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
