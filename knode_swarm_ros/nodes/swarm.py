@@ -153,13 +153,14 @@ def plan_run(args: argparse.Namespace) -> Plan:
         from ..core.policy import DEFAULTS
         d_cr = float(DEFAULTS[scenario]['d_cr'])
     else:
-        from ..core.policy_io import PolicyError, load_policy, shipped_policy_path
+        from ..core.policy_meta import PolicyError, shipped_policy_path
+        from ..core.policy_runtime import load_runtime  # the agents' backend: checks an ONNX twin up front
         try:
             policy_path = args.policy or str(shipped_policy_path(scenario or 'flock2d'))
-            policy = load_policy(policy_path)
+            policy = load_runtime(policy_path, args.policy_runtime)
         except PolicyError as exc:
             hint = '' if args.policy else ' (pass --policy FILE.pt)'
-            raise ConfigError(f'--policy: {exc}{hint}') from None
+            raise ConfigError(f'--policy (--policy-runtime {args.policy_runtime}): {exc}{hint}') from None
         if scenario and policy.scenario != scenario:
             raise ConfigError(f'--scenario {scenario} but the policy {policy_path} is for {policy.scenario}')
         scenario = policy.scenario
