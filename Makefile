@@ -19,7 +19,7 @@ venv: $(VENV)/.installed
 
 # Re-run when the pins or the packaging change (the data files, config/ among them,
 # are copied into $(VENV)/share at install time).
-$(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setup.cfg package.xml $(wildcard config/*)
+$(VENV)/.installed: Makefile requirements.txt requirements-robot.txt requirements-dev.txt setup.py setup.cfg package.xml $(wildcard config/*)
 	@test -x $(PY) || { echo "creating $(VENV) with $$(command -v $(PYTHON)) ($$($(PYTHON) --version 2>&1))"; \
 	  $(PYTHON) -m venv $(VENV); }
 	$(PY) -m pip install --upgrade pip

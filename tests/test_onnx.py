@@ -269,3 +269,37 @@ def test_the_torchscript_runtime_without_torch_says_what_to_do(twins):
     ''', twins['flock2d'])
     assert proc.returncode == 0, proc.stderr
     assert 'the TorchScript runtime needs torch' in proc.stdout and 'policy_runtime onnxruntime' in proc.stdout
+
+
+# --- offline rollout option and packaging ----------------------------------------------
+def test_rollout_cli_runs_the_twin_on_request(tmp_path, twins):
+    from knode_swarm_ros.core import load_trajectories, save_trajectories
+    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    from training.rollout import main as rollout_main
+    z0, _ = initial_state('boids3d', 6, seed=1)
+    init = tmp_path / 'init.npz'
+    save_trajectories(init, z0[None, None], 1 / 60, 'boids3d')
+    out = {}
+    for runtime in ('torchscript', 'onnxruntime'):
+        path = tmp_path / f'{runtime}.npz'
+        assert rollout_main(['--policy', str(twins['boids3d']), '--init', str(init), '--steps', '50',
+                             '--out', str(path), '--runtime', runtime]) == 0
+        data = load_trajectories(path)
+        assert data.meta['runtime'] == runtime
+        out[runtime] = data.states
+    assert 0 < np.abs(out['torchscript'] - out['onnxruntime']).max() <= 1e-4  # two backends, float32 rounding
+
+
+def _pins(path):
+    lines = [line.split('#')[0].strip() for line in (REPO / path).read_text().splitlines()]
+    return dict(line.split('==') for line in lines if '==' in line)
+
+
+def test_the_robot_requirements_need_no_torch():
+    robot, full = _pins('requirements-robot.txt'), _pins('requirements.txt')
+    assert 'torch' not in robot and {'numpy', 'PyYAML', 'onnxruntime', 'ros-jazzy-rclpy'} <= set(robot)
+    assert set(full) == {'torch'} and '-r requirements-robot.txt' in (REPO / 'requirements.txt').read_text()
+    setup = (REPO / 'setup.py').read_text()
+    assert f"'robot': ['onnxruntime=={robot['onnxruntime']}']" in setup and "'policies/*.onnx'" in setup
+    import onnxruntime
+    assert onnxruntime.__version__ == robot['onnxruntime']
