@@ -87,7 +87,8 @@ def compare(reference, twin, inputs: Dict[str, Tuple[np.ndarray, np.ndarray]]) -
     return errors
 
 
-def export_onnx(pt_path, out: Optional[os.PathLike] = None, tol: float = TOLERANCE, seed: int = 0) -> Tuple[Path, Dict[str, float]]:
+def export_onnx(pt_path, out: Optional[os.PathLike] = None, tol: float = TOLERANCE,
+                seed: int = 0) -> Tuple[Path, Dict[str, float]]:
     """Write the ONNX twin of the policy file ``pt_path``; returns (path, errors per batch).
 
     Raises:
