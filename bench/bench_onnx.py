@@ -225,7 +225,7 @@ def main(argv=None) -> int:
     p.add_argument('--repeats', type=int, default=5, help='processes per backend for start and node (median)')
     p.add_argument('--swarm', type=int, default=50, help='robots of the onnxruntime realtime swarm (default 50)')
     p.add_argument('--swarm-torchscript', type=int, default=None,
-                   help='robots of the TorchScript swarm (default: as --swarm; lower it when memory is short)')
+                   help='robots of the TorchScript swarm (default: as --swarm; lower it when memory is short, 0: skip)')
     p.add_argument('--steps', type=int, default=600, help='swarm steps (0.01 s each of flock2d; default 600)')
     a = p.parse_args(argv)
     only = set(a.only or ('start', 'node', 'tick', 'parity', 'swarm'))
@@ -283,6 +283,8 @@ def main(argv=None) -> int:
         print(f'{"backend":12s} {"robots":>6} {"missed":>8} {"odom loss":>9} {"cmd loss":>9} {"lat p50":>8} '
               f'{"lat p99":>8} {"MB/agent":>9} {"MB all":>8} {"CPU agents":>10} rc')
         for b in BACKENDS:
+            if not counts[b]:
+                continue  # --swarm-torchscript 0: skipped (memory)
             res[f'swarm_{b}'] = s = bench_swarm(b, counts[b], a.steps, tmp)
             lat = s['latency_ms']
             print(f'{b:12s} {counts[b]:6d} {s["missed"]:8.2%} {s["loss"]["odom_loss"]:9.2%} {s["loss"]["cmd_loss"]:9.2%} '
