@@ -22,7 +22,7 @@ venv: $(VENV)/.installed
 
 # Re-run when the pins or the packaging change (the data files, config/ among them,
 # are copied into $(VENV)/share at install time).
-$(VENV)/.installed: Makefile requirements.txt requirements-dev.txt setup.py setup.cfg package.xml tools/torch_build.py \
+$(VENV)/.installed: Makefile requirements.txt requirements-robot.txt requirements-dev.txt setup.py setup.cfg package.xml tools/torch_build.py \
                     $(wildcard config/*)
 	@test -x $(PY) || { echo "creating $(VENV) with $$(command -v $(PYTHON)) ($$($(PYTHON) --version 2>&1))"; \
 	  $(PYTHON) -m venv $(VENV); }

@@ -8,7 +8,9 @@ that prefix.
 
 Only numpy and pyyaml are install_requires: rclpy and the message packages come from
 ROS 2 (apt/colcon) or from the ros-jazzy-* wheels, and torch must be pinned to an
-exact CPU build; requirements.txt pins all of them for a virtual environment.
+exact CPU build; requirements.txt pins all of them for a virtual environment. A robot
+that runs only the ONNX twins needs the ``robot`` extra (onnxruntime) and no torch
+(requirements-robot.txt pins that set).
 """
 import os
 
@@ -45,14 +47,16 @@ setup(
     packages=find_packages(
         exclude=['tests', 'tests.*', 'training', 'training.*', 'bench', 'bench.*']),
     # Shipped, pretrained policies: found at run time through importlib.resources.
-    package_data={PACKAGE_NAME: ['policies/*.pt']},
+    package_data={PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),
     ] + _config_data_files(),
     install_requires=['numpy', 'pyyaml'],
-    # bag: reading and writing bags (knode_swarm_ros.bag): rosbags is pure Python, no ROS needed.
-    extras_require={'test': ['pytest'], 'bag': ['rosbags==0.11.9']},
+    # bag: reading and writing bags (knode_swarm_ros.bag: rosbags is pure Python, no ROS needed);
+    # robot: the torch-free runtime (onnxruntime); torch: the TorchScript runtime and training.
+    extras_require={'test': ['pytest'], 'bag': ['rosbags==0.11.9'], 'robot': ['onnxruntime==1.32.0'],
+                    'torch': ['torch==2.13.0']},
     zip_safe=False,
     entry_points={
         'console_scripts': [

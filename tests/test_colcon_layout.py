@@ -170,7 +170,7 @@ def test_colcon_install_has_ros2_run_layout(colcon_workspace, monkeypatch):
             if p and Path(p).is_relative_to(install / PACKAGE)]
     assert len(site) == 1, f'expected one site-packages of the install on PYTHONPATH: {site}'
     for source in sorted((src / PACKAGE).rglob('*')):
-        if source.suffix in ('.py', '.pt') and '__pycache__' not in source.parts:
+        if source.suffix in ('.py', '.pt', '.onnx') and '__pycache__' not in source.parts:
             rel = source.relative_to(src)
             assert (site[0] / rel).is_file(), \
                 f'{rel} is not installed (missing __init__.py or package_data?)'

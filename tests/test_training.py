@@ -11,7 +11,7 @@ import torch
 import torchdiffeq  # noqa: F401  (a broken install must fail, not skip)
 import yaml
 
-from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, get_scenario, load_policy, rollout,  # noqa: E402
+from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, get_scenario, load_policy, load_runtime, rollout,  # noqa: E402
                                   save_trajectories, zoh_step)
 from training.common import (ConfigError, build_policy, implied_command, loss_scales, make_samples,  # noqa: E402
                              module_policy_fn, normalise_config, one_step_loss, predict_next)
@@ -170,6 +170,10 @@ def test_exported_policy_matches_module_and_has_provenance(tmp_path):
     assert prov["config"] == cfg and prov["data_file"] == "teacher.npz" and "git_commit" in prov
     for name in ("config.yaml", "metrics.jsonl", "checkpoint.pt", "summary.json"):
         assert (tmp_path / "run" / name).is_file()
+    # issue 15: training writes the ONNX twin beside the policy, and it matches the module
+    twin = load_runtime(tmp_path / "run" / "policy.pt", "onnxruntime")
+    assert twin.backend == "onnxruntime" and twin.meta == loaded.meta
+    np.testing.assert_allclose(twin(s.Y.numpy(), s.mask.numpy()), want, atol=1e-5)
 
 
 def test_fixed_seed_is_deterministic_and_resume_matches(tmp_path):

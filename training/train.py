@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import yaml
 
-from knode_swarm_ros.core import TrajectoryError, export_policy, get_scenario, load_trajectories
+from knode_swarm_ros.core import PolicyError, TrajectoryError, export_policy, get_scenario, load_trajectories
 from knode_swarm_ros.core.trajectory import atomic_write
 
 from .common import (ConfigError, Samples, augment_batch, build_policy, final_metrics, git_commit, load_config, loss_scales,
@@ -314,6 +314,18 @@ class Trainer:
                 break
         return self.finish()
 
+    def _export_twin(self, path: str) -> Dict[str, Any]:
+        """Write the ONNX twin of ``path`` (issue 15); a failed export is logged, never fatal:
+        the TorchScript policy is the training artefact."""
+        from .export_onnx import export_onnx
+        try:
+            twin, errors = export_onnx(path)
+        except (ImportError, PolicyError) as exc:
+            self.log(f"ONNX twin not written: {exc}")
+            return {"path": None, "error": str(exc)}
+        self.log(f"wrote {twin}: max difference to TorchScript {max(errors.values()):.2e}")
+        return {"path": str(twin), "max_difference": max(errors.values())}
+
     def finish(self) -> Dict[str, Any]:
         final_state = copy.deepcopy(self.policy.state_dict())
         chosen = "last"
@@ -329,11 +341,13 @@ class Trainer:
             "torch": torch.__version__}
         path = os.path.join(self.out, "policy.pt")
         export_policy(self.policy, path, meta)
+        onnx_twin = self._export_twin(path)
         self.policy.load_state_dict(final_state)
         summary = {"policy": path, "epochs": self.epoch, "selected": chosen, "train_seconds": round(self.elapsed, 1),
                    "prep_seconds": round(self.prep_s, 1), "train_samples": len(self.train), "dropped_saturated": self.dropped,
                    "val_samples": 0 if self.val is None else len(self.val),
-                   "best": None if self.best is None else {k: v for k, v in self.best.items() if k != "state"}}
+                   "best": None if self.best is None else {k: v for k, v in self.best.items() if k != "state"},
+                   "onnx": onnx_twin}
         write_json(os.path.join(self.out, "summary.json"), summary)
         return summary
 

@@ -10,6 +10,9 @@ Public API (shapes: S swarms, T steps, n robots, d state entries, k rows, m comm
 * policy: :class:`PolicyConfig`, :class:`KNODEPolicy` (``forward(Y [B, k, d], mask [B, k]) -> [B, m]``),
   :func:`export_policy`, :func:`load_policy`, :class:`LoadedPolicy`, :class:`PolicyError`,
   :func:`shipped_policy_path`.
+* policy runtimes (torch-free unless TorchScript is chosen): :func:`load_runtime`
+  (``auto | torchscript | onnxruntime``), :class:`OnnxPolicy` (the ONNX twin on onnxruntime),
+  :func:`onnx_twin_path`.
 * rollout: :func:`zoh_step`, :func:`rollout` (``[S, n, d]`` -> ``[S, T + 1, n, d]``).
 * metrics: :func:`avd`, :func:`amd`, :func:`pod_energy`, :func:`pod_kld`.
 * trajectory files: :func:`load_trajectories`, :func:`save_trajectories`, :class:`TrajectoryError`.
@@ -22,6 +25,8 @@ from typing import Any
 from .delay_buffer import DelayBuffer
 from .metrics import amd, avd, pod_energy, pod_kld
 from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
+from .policy_meta import PolicyError, shipped_policy_path
+from .policy_runtime import RUNTIMES, OnnxPolicy, load_runtime, onnx_twin_path
 from .rollout import rollout, zoh_step
 from .scenarios import SCENARIOS, Scenario, get_scenario
 from .trajectory import (TrajectoryError, TrajectoryFile, load_trajectories, parse_trajectory_ref,
@@ -32,13 +37,14 @@ from .trajectory import (TrajectoryError, TrajectoryFile, load_trajectories, par
 _LAZY = {
     "knowledge": ["AvoidanceGain", "collision_avoidance", "wall_avoidance"],
     "policy": ["DEFAULTS", "KNODEPolicy", "PolicyConfig"],
-    "policy_io": ["LoadedPolicy", "PolicyError", "export_policy", "load_policy", "shipped_policy_path"],
+    "policy_io": ["LoadedPolicy", "export_policy", "load_policy"],
 }
 _MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
 __all__ = sorted(list(_MODULE_OF) + [
     "DelayBuffer", "amd", "avd", "pod_energy", "pod_kld", "neighbour_matrices", "neighbour_matrix",
     "neighbour_matrix_single", "rollout", "zoh_step", "SCENARIOS", "Scenario", "get_scenario",
-    "TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref", "save_trajectories"])
+    "TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref", "save_trajectories",
+    "PolicyError", "shipped_policy_path", "RUNTIMES", "OnnxPolicy", "load_runtime", "onnx_twin_path"])
 
 
 def __getattr__(name: str) -> Any:

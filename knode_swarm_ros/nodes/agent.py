@@ -44,10 +44,13 @@ _EXPLAIN = {
 }
 
 
-def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float):
+def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float,
+                      runtime: str = 'auto', threads: int = 1):
     """Load the policy and check the optional parameters against its metadata.
 
     ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too).
+    ``runtime`` (``policy_runtime``): ``auto`` runs the ONNX twin on onnxruntime when it exists
+    and onnxruntime is installed, else TorchScript (only that path imports torch).
     ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
     ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
 
@@ -55,7 +58,8 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
         ConfigError: missing, corrupt or mismatched policy file; the message names the
             parameter or the file and both values.
     """
-    from ..core.policy_io import PolicyError, load_policy, shipped_policy_path  # torch: only here
+    from ..core.policy_meta import PolicyError, shipped_policy_path
+    from ..core.policy_runtime import load_runtime  # imports torch only for the TorchScript backend
     if not path:
         scenario = scenario or 'flock2d'
         try:
@@ -64,9 +68,9 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
             raise ConfigError(f"parameter 'policy' is empty, so the shipped policy of scenario "
                               f"{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt") from None
     try:
-        policy = load_policy(path)
+        policy = load_runtime(path, runtime, threads=threads)
     except PolicyError as exc:
-        raise ConfigError(f"parameter 'policy': {exc}") from None
+        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
     wanted = {'scenario': scenario or None, 'k': k if k > 0 else None, 'd_cr': d_cr if d_cr > 0 else None,
               'tau': tau if tau >= 0 else None, 'dt': dt if dt > 0 else None}
     for key, value in wanted.items():
@@ -94,7 +98,11 @@ class AgentNode(Node):
         robot_ids = declare_int_array(self, 'robot_ids', "the swarm's robot ids (overrides 'robots')")
         scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's; with policy "
                            'empty too: flock2d)', choices=('', 'flock2d', 'boids3d'))
-        policy_path = declare(self, 'policy', '', 'TorchScript policy file (empty: the shipped policy of scenario)')
+        policy_path = declare(self, 'policy', '', 'TorchScript policy file, or its ONNX twin (empty: the shipped '
+                              'policy of scenario)')
+        runtime = declare(self, 'policy_runtime', 'auto', 'auto: onnxruntime when POLICY.onnx exists and onnxruntime '
+                          'is installed, else TorchScript; torchscript; onnxruntime (no torch import)',
+                          choices=('auto', 'torchscript', 'onnxruntime'))
         mode = declare(self, 'mode', 'realtime', 'lockstep: answer each own state once every needed neighbour '
                        'state is here; realtime: a timer at control_rate', choices=MODES)
         control_rate = declare(self, 'control_rate', 20.0, 'realtime control rate in Hz (on the ROS clock)',
@@ -114,7 +122,8 @@ class AgentNode(Node):
                      float_range=(0.0, 3600.0))
         parity_batch = declare(self, 'parity_batch', True, 'lockstep: evaluate the policy in a batch shaped like the '
                                "offline rollout's, so lockstep runs equal core.rollout bit for bit")
-        threads = declare(self, 'torch_threads', 1, 'torch intra-op threads', int_range=(1, 256))
+        threads = declare(self, 'torch_threads', 1, 'intra-op threads of the policy runtime (torch or onnxruntime)',
+                          int_range=(1, 256))
         status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
                                 float_range=(0.01, 3600.0))
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
@@ -124,9 +133,7 @@ class AgentNode(Node):
         config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
         config.validate()
 
-        import torch  # here, not at module level: parameter errors come without the torch import
-        torch.set_num_threads(threads)
-        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt)
+        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt, runtime, threads)
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
@@ -149,7 +156,7 @@ class AgentNode(Node):
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(status_period, self._publish_status, clock=self._wall)
         self.get_logger().info(
-            f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} '
+            f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
             f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
             f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}')
         self._publish_status()

@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000')
     p.add_argument('--mode', choices=MODES, default='lockstep', help='default lockstep')
     p.add_argument('--policy', help='TorchScript policy file (default: the shipped policy of the scenario)')
+    p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='auto',
+                   help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto")
     p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
     p.add_argument('--seed', type=int, default=0, help='seed of the initial state (without --init); default 0')
     p.add_argument('--record', metavar='OUT.npz', required=True, help='trajectory file to write')
@@ -193,13 +195,14 @@ def plan_run(args: argparse.Namespace) -> Plan:
         from ..core.policy import DEFAULTS
         d_cr = float(DEFAULTS[scenario]['d_cr'])
     else:
-        from ..core.policy_io import PolicyError, load_policy, shipped_policy_path
+        from ..core.policy_meta import PolicyError, shipped_policy_path
+        from ..core.policy_runtime import load_runtime  # the agents' backend: checks an ONNX twin up front
         try:
             policy_path = args.policy or str(shipped_policy_path(scenario or 'flock2d'))
-            policy = load_policy(policy_path)
+            policy = load_runtime(policy_path, args.policy_runtime)
         except PolicyError as exc:
             hint = '' if args.policy else ' (pass --policy FILE.pt)'
-            raise ConfigError(f'--policy: {exc}{hint}') from None
+            raise ConfigError(f'--policy (--policy-runtime {args.policy_runtime}): {exc}{hint}') from None
         if scenario and policy.scenario != scenario:
             raise ConfigError(f'--scenario {scenario} but the policy {policy_path} is for {policy.scenario}')
         scenario = policy.scenario
@@ -288,7 +291,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
     if not gt:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
                  'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
-                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True}
+                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True,
+                 'policy_runtime': a.policy_runtime}
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
         for i in range(plan.robots):
             out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
