@@ -27,6 +27,7 @@ from . import qos
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
 from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, odom_topic, robot_frame, robot_id_list, status_json)
+from .control_period import RATE_CHECKS, shipped_policy_for_rate
 from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
 from .executor import run_node
 from .params import declare, declare_int_array, node_name_from_args
@@ -44,10 +45,12 @@ _EXPLAIN = {
 }
 
 
-def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float):
+def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float, control_rate: float = 0.0):
     """Load the policy and check the optional parameters against its metadata.
 
-    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too).
+    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too); with a
+    realtime ``control_rate`` > 0 (and ``dt`` unset) the shipped one trained for that rate,
+    if there is one (:func:`.control_period.shipped_policy_for_rate`).
     ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
     ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
 
@@ -59,7 +62,8 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
     if not path:
         scenario = scenario or 'flock2d'
         try:
-            path = str(shipped_policy_path(scenario))
+            path = str(shipped_policy_for_rate(scenario, control_rate)[0] if control_rate > 0 and dt <= 0
+                       else shipped_policy_path(scenario))
         except PolicyError as exc:
             raise ConfigError(f"parameter 'policy' is empty, so the shipped policy of scenario "
                               f"{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt") from None
@@ -94,7 +98,8 @@ class AgentNode(Node):
         robot_ids = declare_int_array(self, 'robot_ids', "the swarm's robot ids (overrides 'robots')")
         scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's; with policy "
                            'empty too: flock2d)', choices=('', 'flock2d', 'boids3d'))
-        policy_path = declare(self, 'policy', '', 'TorchScript policy file (empty: the shipped policy of scenario)')
+        policy_path = declare(self, 'policy', '', 'TorchScript policy file (empty: the shipped policy of scenario; '
+                              'realtime: the one trained for control_rate, if shipped)')
         mode = declare(self, 'mode', 'realtime', 'lockstep: answer each own state once every needed neighbour '
                        'state is here; realtime: a timer at control_rate', choices=MODES)
         control_rate = declare(self, 'control_rate', 20.0, 'realtime control rate in Hz (on the ROS clock)',
@@ -112,6 +117,8 @@ class AgentNode(Node):
                       int_range=(-1, 100_000))
         dt = declare(self, 'dt', 0.0, "seconds per step (0: the policy's; another value must equal it)",
                      float_range=(0.0, 3600.0))
+        rate_check = declare(self, 'rate_check', 'warn', "realtime: when 1 / control_rate differs from the policy's "
+                             'dt, warn once (warn) or refuse to start (refuse)', choices=RATE_CHECKS)
         parity_batch = declare(self, 'parity_batch', True, 'lockstep: evaluate the policy in a batch shaped like the '
                                "offline rollout's, so lockstep runs equal core.rollout bit for bit")
         threads = declare(self, 'torch_threads', 1, 'torch intra-op threads', int_range=(1, 256))
@@ -120,12 +127,14 @@ class AgentNode(Node):
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
 
         ids = robot_id_list(robots, robot_ids)
-        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
+        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch,
+                             control_rate=control_rate, rate_check=rate_check)
         config.validate()
 
         import torch  # here, not at module level: parameter errors come without the torch import
         torch.set_num_threads(threads)
-        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt)
+        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt,
+                                   control_rate if mode == 'realtime' else 0.0)
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
@@ -151,6 +160,7 @@ class AgentNode(Node):
             f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} '
             f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
             f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}')
+        self._log_events()  # the control-period warning, once, at start
         self._publish_status()
 
     def _warm_up(self) -> None:
