@@ -8,6 +8,7 @@
   starts, and the realtime defaults (configs, ``swarm --mode realtime``) picking it.
 """
 import math
+import os
 
 import numpy as np
 import pytest
@@ -226,3 +227,54 @@ def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(
     cfg.write_text(yaml.safe_dump(raw))
     assert train_main(['--config', str(cfg), '--data', data, '--out', str(tmp_path / 'r3'), '--no-progress']) == 2
     assert 'data.policy_dt' in capsys.readouterr().err
+
+
+# --- the shipped 20 Hz policy and the realtime defaults ----------------------------------
+def test_shipped_20hz_policy_rolls_out_at_dt_005_from_held_out_starts():
+    pytest.importorskip('torch')
+    from knode_swarm_ros.core import amd, avd, load_policy, rollout, shipped_policy_path
+    from knode_swarm_ros.core.groundtruth.tanner import initial_states
+    from training.common import min_pair_distance
+    policy = load_policy(shipped_policy_path('flock2d_20hz'), expect={'scenario': 'flock2d', 'dt': 0.05})
+    prov = policy.meta['provenance']
+    assert prov['data_dt'] == 0.01 and prov['dt_ratio'] == 5 and prov['config']['data']['policy_dt'] == 0.05
+    # starts drawn like the data (paper disk, 10 robots) from a seed the data never used
+    z0 = initial_states(np.random.default_rng(20261130), 4, 10, min_separation=0.3)
+    states = rollout(policy, z0, 400, 'flock2d', policy.d_cr, policy.k, policy.tau, policy.dt)   # 20 s
+    assert states.shape == (4, 401, 10, 4) and np.all(np.isfinite(states))
+    # each step is an exact zero-order hold of 0.05 s: x1 - x0 = v0 dt + (v1 - v0) dt / 2
+    dx, dv = states[:, 1:, :, :2] - states[:, :-1, :, :2], states[:, 1:, :, 2:] - states[:, :-1, :, 2:]
+    np.testing.assert_allclose(dx, states[:, :-1, :, 2:] * 0.05 + dv * 0.025, atol=1e-12)
+    start = avd(states[:, 0, :, 2:])
+    final = avd(states[:, -10:, :, 2:]).mean(axis=1)
+    assert np.all(final < 0.25) and np.all(final < start / 5), (start, final)   # flocked (measured ~0.12)
+    assert np.all(min_pair_distance(states[:, 20:, :, :2]) > 0.3)              # no collision after 1 s
+    assert np.all(np.abs(amd(states[:, -10:, :, :2]).mean(axis=1) - 0.73) < 0.15)
+
+
+def test_realtime_defaults_pick_the_policy_of_the_rate(tmp_path):
+    pytest.importorskip('torch')
+    from knode_swarm_ros.core import shipped_policy_path
+    from knode_swarm_ros.nodes import swarm
+    from knode_swarm_ros.nodes.control_period import shipped_policy_for_rate
+    assert shipped_policy_for_rate('flock2d', 20.0) == (shipped_policy_path('flock2d_20hz'), True)
+    assert shipped_policy_for_rate('flock2d', 100.0) == (shipped_policy_path('flock2d'), True)
+    assert shipped_policy_for_rate('flock2d', 10.0) == (shipped_policy_path('flock2d'), False)   # none shipped: warns
+    config = yaml.safe_load(open(os.path.join(os.path.dirname(__file__), '..', 'config', 'agent_flock2d.yaml')))['/**']['ros__parameters']
+    assert config['mode'] == 'realtime' and config['policy'] == '' and config['control_rate'] == 20.0
+    from knode_swarm_ros.nodes.agent import load_agent_policy
+    assert load_agent_policy('', config['scenario'], 0, 0.0, -1, 0.0, config['control_rate']).dt == 0.05
+    assert load_agent_policy('', 'flock2d', 0, 0.0, -1, 0.0).dt == 0.01                          # lockstep
+    record = str(tmp_path / 'r.npz')
+    plans = {mode: swarm.plan_run(swarm.build_parser().parse_args(
+        ['--mode', mode, '--record', record, '--log-dir', str(tmp_path / mode)])) for mode in ('realtime', 'lockstep')}
+    assert plans['realtime'].policy == str(shipped_policy_path('flock2d_20hz').resolve())
+    assert plans['realtime'].dt == 0.05                      # the simulator steps at the policy's dt
+    assert plans['lockstep'].policy == str(shipped_policy_path('flock2d').resolve()) and plans['lockstep'].dt == 0.01
+    args = swarm.build_parser().parse_args(['--mode', 'realtime', '--rate', '50', '--rate-check', 'refuse',
+                                            '--record', record, '--log-dir', str(tmp_path / 'r50')])
+    plan = swarm.plan_run(args)
+    assert plan.policy == str(shipped_policy_path('flock2d').resolve())
+    agent = swarm.node_commands(plan)['agent_0']
+    params = yaml.safe_load(open(agent[agent.index('--params-file') + 1]))['/**']['ros__parameters']
+    assert params['control_rate'] == 50.0 and params['rate_check'] == 'refuse'
