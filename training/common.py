@@ -36,7 +36,7 @@ class ConfigError(ValueError):
 # Every config section with its defaults; ``None`` means "scenario dependent" (filled below).
 DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
     "data": {"train_trajectories": None, "val_trajectories": 4, "frames": None, "stride": 1,
-             "drop_saturated": True},
+             "drop_saturated": True, "policy_dt": None},
     "noise": {"mode": "inputs", "variance": None},
     "training": {"solver": "zoh", "ode_method": "rk4", "epochs": 60, "batch_size": 4096, "lr": 3e-3,
                  "lr_schedule": "cosine", "lr_min": 1e-4, "weight_decay": 0.0, "loss_units": "command",
@@ -136,6 +136,8 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
            "must be null or an integer >= 2")
     _check(pos_int(d["stride"]), "data.stride", d["stride"], "must be an integer >= 1")
     _check(isinstance(d["drop_saturated"], bool), "data.drop_saturated", d["drop_saturated"], "must be true or false")
+    _check(d["policy_dt"] is None or (num(d["policy_dt"]) and d["policy_dt"] > 0), "data.policy_dt", d["policy_dt"],
+           "must be null (the data's dt) or a positive multiple of the data's dt in seconds")
     _check(n["mode"] in NOISE_MODES, "noise.mode", n["mode"], f"must be one of {', '.join(NOISE_MODES)}")
     _check(num(n["variance"]) and n["variance"] >= 0, "noise.variance", n["variance"], "must be >= 0")
     a = cfg["augment"]
@@ -225,26 +227,29 @@ def implied_command(own: Tensor, target: Tensor, spec: Scenario, dt: float) -> T
 
 
 def make_samples(states: np.ndarray, spec: Scenario, d_cr: float, k: int, tau: int, stride: int = 1,
-                 obs_noise_std: float = 0.0, rng: Optional[np.random.Generator] = None) -> Samples:
-    """Build samples from trajectories ``[N, T, n, d]`` (T >= 2) with the core's batched builder.
+                 obs_noise_std: float = 0.0, rng: Optional[np.random.Generator] = None, ratio: int = 1) -> Samples:
+    """Build samples from trajectories ``[N, T, n, d]`` (T >= ratio + 1) with the core's batched builder.
 
     ``obs_noise_std`` > 0 adds Gaussian noise to the observed trajectories once (the paper's
     noisy observations): inputs and targets both see it. ``stride`` keeps every stride-th
-    frame as a start state (targets are always the next frame).
+    frame as a start state. ``ratio`` (policy dt / data dt, see :mod:`training.period`): the
+    target of start frame t is frame t + ratio and the delay ``tau`` (policy steps) is
+    ``tau * ratio`` frames, so the pairs are observations at the policy's period taken at
+    every phase of the data (``stride = ratio`` keeps one phase).
     """
     states = np.asarray(states, dtype=np.float64)
-    if states.ndim != 4 or states.shape[1] < 2:
-        raise ValueError(f"need trajectories [N, T >= 2, n, d], got {states.shape}")
+    if states.ndim != 4 or states.shape[1] < ratio + 1:
+        raise ValueError(f"need trajectories [N, T >= {ratio + 1}, n, d], got {states.shape}")
     clean = states
     if obs_noise_std > 0:
         rng = rng or np.random.default_rng(0)
         states = states + rng.normal(0.0, obs_noise_std, size=states.shape)
-    Y, mask = neighbour_matrices(states, spec.position_dim, d_cr, k, tau)   # [N, T, n, k, d]
-    starts = np.arange(0, states.shape[1] - 1, stride)
+    Y, mask = neighbour_matrices(states, spec.position_dim, d_cr, k, tau * ratio)   # [N, T, n, k, d]
+    starts = np.arange(0, states.shape[1] - ratio, stride)
     d = states.shape[-1]
     Ys = Y[:, starts].reshape(-1, k, d)
     ms = mask[:, starts].reshape(-1, k)
-    target = states[:, starts + 1].reshape(-1, d)
+    target = states[:, starts + ratio].reshape(-1, d)
     own = clean[:, starts].reshape(-1, d)
     f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
     return Samples(f32(Ys), f32(ms), f32(target), f32(own))

@@ -26,6 +26,7 @@ from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_sc
 
 from . import figures
 from .common import final_metrics, mean_ci, write_json
+from .period import period_ratio, subsample
 
 # Goals of issue 4 (reported, not enforced).
 GOALS = {
@@ -69,12 +70,17 @@ def evaluate(policy_path: str, data_path: str, out: str, trajectories: int = 20,
     data = load_trajectories(data_path, scenario=policy.scenario)
     test = data.split("test")[:trajectories]
     truth = data.states[test]
+    try:  # a policy trained for a longer period (data.policy_dt) is compared at its own dt
+        ratio = period_ratio(data.dt, policy.dt, "the policy's dt")
+        truth = subsample(truth, ratio)
+    except ValueError:
+        ratio = None  # not a whole multiple: warned below
     if steps is not None:
         truth = truth[:, : steps + 1]
     T = truth.shape[1]
     if T < 2:
         raise TrajectoryError(f"{data_path}: test trajectories hold {T} frame(s); evaluation needs >= 2")
-    if abs(data.dt - policy.dt) > 1e-12:
+    if ratio is None:
         log(f"warning: data dt {data.dt} differs from the policy's dt {policy.dt}; rolling out with the policy's")
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()

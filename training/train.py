@@ -33,6 +33,7 @@ from knode_swarm_ros.core.trajectory import atomic_write
 from .common import (ConfigError, Samples, augment_batch, build_policy, final_metrics, git_commit, load_config, loss_scales,
                      implied_command, make_samples, one_step_loss, predict_next, rollout_module, selection_score,
                      write_json)
+from .period import period_ratio, policy_dt, subsample
 
 
 class DivergenceError(RuntimeError):
@@ -99,8 +100,17 @@ class Trainer:
                             f"{cfg['scenario']!r}")
         if data.states.shape[2] < 2:
             raise DataError(f"{data_path}: field 'states' holds {data.states.shape[2]} robot(s); need >= 2")
-        self.dt = float(data.dt)
+        # The policy's dt: the data's, or a whole multiple of it (data.policy_dt, training.period).
+        self.data_dt = float(data.dt)
+        try:
+            self.ratio = period_ratio(self.data_dt, cfg["data"]["policy_dt"])
+        except ValueError as exc:
+            raise DataError(f"{data_path}: config field {exc}") from None
+        self.dt = policy_dt(self.data_dt, self.ratio)
         self.split = split_data(cfg, data)
+        if self.split["train"].shape[1] <= self.ratio:
+            raise DataError(f"{data_path}: trajectories of {self.split['train'].shape[1]} frames are too short for "
+                            f"a policy step of {self.ratio} frames (data.policy_dt = {self.dt:g} s)")
         pc, nc = cfg["policy"], cfg["noise"]
         std = math.sqrt(nc["variance"])
         obs_std = std if nc["mode"] == "observations" else 0.0
@@ -108,8 +118,8 @@ class Trainer:
         rng = np.random.default_rng(cfg["seed"])
         t0 = time.perf_counter()
         self.train = make_samples(self.split["train"], self.spec, pc["d_cr"], pc["k"], pc["tau"],
-                                  cfg["data"]["stride"], obs_std, rng)
-        self.val = (make_samples(self.split["val"], self.spec, pc["d_cr"], pc["k"], pc["tau"], 1)
+                                  cfg["data"]["stride"], obs_std, rng, ratio=self.ratio)
+        self.val = (make_samples(self.split["val"], self.spec, pc["d_cr"], pc["k"], pc["tau"], 1, ratio=self.ratio)
                     if len(self.split["val"]) else None)
         self.dropped = 0
         if cfg["data"]["drop_saturated"]:
@@ -226,7 +236,7 @@ class Trainer:
         sc = self.cfg["selection"]
         if sc["every"] == 0 or len(self.split["val"]) == 0:
             return None
-        truth = self.split["val"][: sc["trajectories"]]
+        truth = subsample(self.split["val"][: sc["trajectories"]], self.ratio)   # frames at the policy's dt
         steps = truth.shape[1] - 1 if sc["steps"] is None else min(sc["steps"], truth.shape[1] - 1)
         truth = truth[:, : steps + 1]
         self.policy.eval()
@@ -337,6 +347,7 @@ class Trainer:
             "trainer": "training.train", "config": self.cfg, "data": os.path.abspath(self.data_path),
             "data_file": os.path.basename(self.data_path), "git_commit": git_commit(os.path.dirname(os.path.abspath(__file__))),
             "train_trajectories": self.split["train_idx"].tolist(), "val_trajectories": self.split["val_idx"].tolist(),
+            "data_dt": self.data_dt, "dt_ratio": self.ratio,
             "epochs": self.epoch, "selected": chosen, "train_seconds": round(self.elapsed, 1),
             "torch": torch.__version__}
         path = os.path.join(self.out, "policy.pt")

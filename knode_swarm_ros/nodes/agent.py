@@ -27,6 +27,7 @@ from . import qos
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
 from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, odom_topic, robot_frame, robot_id_list, status_json)
+from .control_period import RATE_CHECKS, shipped_policy_for_rate
 from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
 from .executor import run_node
 from .params import check_overrides, declare, declare_int_array, node_name_from_args
@@ -45,10 +46,12 @@ _EXPLAIN = {
 
 
 def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, dt: float,
-                      runtime: str = 'auto', threads: int = 1):
+                      runtime: str = 'auto', threads: int = 1, control_rate: float = 0.0):
     """Load the policy and check the optional parameters against its metadata.
 
-    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too).
+    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too); with a
+    realtime ``control_rate`` > 0 (and ``dt`` unset) the shipped one trained for that rate,
+    if there is one (:func:`.control_period.shipped_policy_for_rate`).
     ``runtime`` (``policy_runtime``): ``auto`` runs the ONNX twin on onnxruntime when it exists
     and onnxruntime is installed, else TorchScript (only that path imports torch).
     ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
@@ -63,7 +66,8 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
     if not path:
         scenario = scenario or 'flock2d'
         try:
-            path = str(shipped_policy_path(scenario))
+            path = str(shipped_policy_for_rate(scenario, control_rate)[0] if control_rate > 0 and dt <= 0
+                       else shipped_policy_path(scenario))
         except PolicyError as exc:
             raise ConfigError(f"parameter 'policy' is empty, so the shipped policy of scenario "
                               f"{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt") from None
@@ -99,7 +103,7 @@ class AgentNode(Node):
         scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's; with policy "
                            'empty too: flock2d)', choices=('', 'flock2d', 'boids3d'))
         policy_path = declare(self, 'policy', '', 'TorchScript policy file, or its ONNX twin (empty: the shipped '
-                              'policy of scenario)')
+                              'policy of scenario; realtime: the one trained for control_rate, if shipped)')
         runtime = declare(self, 'policy_runtime', 'auto', 'auto: onnxruntime when POLICY.onnx exists and onnxruntime '
                           'is installed, else TorchScript; torchscript; onnxruntime (no torch import)',
                           choices=('auto', 'torchscript', 'onnxruntime'))
@@ -120,6 +124,8 @@ class AgentNode(Node):
                       int_range=(-1, 100_000))
         dt = declare(self, 'dt', 0.0, "seconds per step (0: the policy's; another value must equal it)",
                      float_range=(0.0, 3600.0))
+        rate_check = declare(self, 'rate_check', 'warn', "realtime: when 1 / control_rate differs from the policy's "
+                             'dt, warn once (warn) or refuse to start (refuse)', choices=RATE_CHECKS)
         parity_batch = declare(self, 'parity_batch', True, 'lockstep: evaluate the policy in a batch shaped like the '
                                "offline rollout's, so lockstep runs equal core.rollout bit for bit")
         threads = declare(self, 'torch_threads', 1, 'intra-op threads of the policy runtime (torch or onnxruntime)',
@@ -130,10 +136,12 @@ class AgentNode(Node):
         check_overrides(self, sys.argv)
 
         ids = robot_id_list(robots, robot_ids)
-        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
+        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch,
+                             control_rate=control_rate, rate_check=rate_check)
         config.validate()
 
-        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt, runtime, threads)
+        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt, runtime, threads,
+                                   control_rate if mode == 'realtime' else 0.0)
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
@@ -159,6 +167,7 @@ class AgentNode(Node):
             f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
             f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
             f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}')
+        self._log_events()  # the control-period warning, once, at start
         self._publish_status()
 
     def _warm_up(self) -> None:

@@ -22,6 +22,9 @@ core's neighbour-matrix builder and the policy file's controller:
   for an acceleration-commanded robot a saturated brake to rest from the velocity it is
   estimated to have (its last state carried forward under the commands sent since:
   :func:`knode_swarm_ros.core.saturation.stop_command`), so it does not coast.
+  Its control period ``1 / control_rate`` is compared with the policy's dt
+  (:mod:`.control_period`): equal is silent, different warns once (an event) or, with
+  ``rate_check`` ``refuse``, raises :class:`ConfigError`; :meth:`status` reports the ratio.
 
 Y_i comes from :func:`knode_swarm_ros.core.neighbour_matrix_single` with the rows ordered by
 robot id (ties go to the lower id, as in the offline rollout). With ``parity_batch`` the policy
@@ -44,6 +47,7 @@ from ..core.network import neighbour_matrix_single
 from ..core.saturation import effective_limit, saturate, stop_command
 from ..core.scenarios import get_scenario
 from .common import MODES, ConfigError
+from .control_period import RATE_CHECKS, check_control_period
 
 __all__ = ['AgentConfig', 'AgentLogic', 'Command', 'PolicyLike', 'DROP_REASONS']
 
@@ -75,6 +79,8 @@ class AgentConfig:
     future_tolerance: float = 0.5
     command_limit: float = 0.0
     parity_batch: bool = True
+    control_rate: float = 0.0   # Hz (realtime); 0: not known, no period check
+    rate_check: str = 'warn'    # control period != policy dt: 'warn' once or 'refuse' (control_period.py)
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first bad parameter."""
@@ -92,6 +98,10 @@ class AgentConfig:
             raise ConfigError(f"parameter 'future_tolerance' must be >= 0 seconds, got {self.future_tolerance}")
         if not (np.isfinite(self.command_limit) and self.command_limit >= 0):
             raise ConfigError(f"parameter 'command_limit' must be >= 0 (0: the policy's), got {self.command_limit}")
+        if not (np.isfinite(self.control_rate) and self.control_rate >= 0):
+            raise ConfigError(f"parameter 'control_rate' must be > 0 Hz, got {self.control_rate}")
+        if self.rate_check not in RATE_CHECKS:
+            raise ConfigError(f"parameter 'rate_check' = {self.rate_check!r} is not one of {', '.join(RATE_CHECKS)}")
 
 
 def _short(ids: Sequence[int]) -> str:
@@ -158,6 +168,13 @@ class AgentLogic:
         self._lock = _Lockstep()
         self._last_tick_ns: Optional[int] = None
         self._stop_v: Optional[np.ndarray] = None  # estimated velocity while stopping (acceleration)
+        # Realtime: each command is held one control period; the policy was trained for one dt.
+        self.period = (check_control_period(config.control_rate, self.dt)
+                       if config.mode == 'realtime' and config.control_rate > 0 else None)
+        if self.period is not None and not self.period.equal:
+            if config.rate_check == 'refuse':
+                raise ConfigError(f"parameter 'control_rate' (rate_check refuse): {self.period.describe()}")
+            self.events.append(self.period.describe())
 
     # --- input ---------------------------------------------------------------------
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
@@ -386,4 +403,6 @@ class AgentLogic:
         return {'id': self.me, 'ready': self.ready, 'dt': self.dt, 'heard': len(self.heard()), 'robots': len(self.ids),
                 'missing': self.missing()[:20], 'mode': self.config.mode,
                 'answered': lock.answered, 'pending': lock.pending, 'gone': sorted(lock.gone),
-                'counters': dict(self.counters)}
+                'counters': dict(self.counters), 'policy_dt': self.dt,
+                'control_period': None if self.period is None else self.period.control_period,
+                'period_ratio': None if self.period is None else self.period.ratio}

@@ -76,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--robots', type=int, help='number of robots (default: 10, or as many as --init has)')
     p.add_argument('--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000')
     p.add_argument('--mode', choices=MODES, default='lockstep', help='default lockstep')
-    p.add_argument('--policy', help='TorchScript policy file (default: the shipped policy of the scenario)')
+    p.add_argument('--policy', help='TorchScript policy file (default: the shipped policy of the scenario; realtime: '
+                   'the one trained for --rate, e.g. policies/flock2d_20hz.pt, if shipped)')
     p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='auto',
                    help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto")
     p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
@@ -89,6 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--variant', default='', help='ground-truth variant / preset (default: paper)')
     p.add_argument('--rate', type=float, default=20.0,
                    help='realtime: control and publishing rate in Hz (simulated time); default 20')
+    p.add_argument('--rate-check', choices=('warn', 'refuse'), default='warn',
+                   help="realtime: when 1 / --rate differs from the policy's dt the agents warn (default) or refuse")
     p.add_argument('--real-time-factor', type=float, default=1.0, help='realtime: default 1')
     p.add_argument('--state-timeout', type=float, default=0.5, help="agents' state_timeout in s; default 0.5")
     p.add_argument('--lockstep-timeout', type=float, default=5.0,
@@ -198,7 +201,13 @@ def plan_run(args: argparse.Namespace) -> Plan:
         from ..core.policy_meta import PolicyError, shipped_policy_path
         from ..core.policy_runtime import load_runtime  # the agents' backend: checks an ONNX twin up front
         try:
-            policy_path = args.policy or str(shipped_policy_path(scenario or 'flock2d'))
+            if args.policy:
+                policy_path = args.policy
+            elif args.mode == 'realtime':  # the shipped policy trained for --rate, if there is one
+                from .control_period import shipped_policy_for_rate
+                policy_path = str(shipped_policy_for_rate(scenario or 'flock2d', args.rate)[0])
+            else:
+                policy_path = str(shipped_policy_path(scenario or 'flock2d'))
             policy = load_runtime(policy_path, args.policy_runtime)
         except PolicyError as exc:
             hint = '' if args.policy else ' (pass --policy FILE.pt)'
@@ -290,7 +299,7 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
                                  str(_params_file(plan.run_dir / 'recorder.yaml', rec))]}
     if not gt:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
-                 'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
+                 'control_rate': float(a.rate), 'rate_check': a.rate_check, 'state_timeout': float(a.state_timeout),
                  'parity_batch': not a.no_parity_batch, 'use_sim_time': True,
                  'policy_runtime': a.policy_runtime}
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
@@ -632,6 +641,9 @@ def run(plan: Plan) -> int:
             else:
                 _say(f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
                      f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})')
+                if plan.mode == 'realtime':
+                    from .control_period import check_control_period
+                    _say(check_control_period(a.rate, plan.dt).describe() or f'control period = policy dt ({plan.dt:g} s)')
             failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
             (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
