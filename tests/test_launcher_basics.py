@@ -73,16 +73,16 @@ def _cmd(tmp_path, *args):
 
 
 @pytest.mark.ros
-def test_a_refused_agent_stops_the_run_before_the_other_agents_start(tmp_path, untrained_policies, ros_domain_id):
-    # The plan accepts --state-timeout 1e-9 (> 0); the agents' parameter range refuses it.
+def test_a_refused_simulator_stops_the_run_before_any_agent_starts(tmp_path, untrained_policies, ros_domain_id):
+    # The plan accepts --lockstep-timeout 1e-9 (> 0); the simulator's parameter range refuses it.
     proc = subprocess.run(_cmd(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 6,
-                               '--state-timeout', 1e-9, '--record', tmp_path / 'r.npz'),
+                               '--lockstep-timeout', 1e-9, '--record', tmp_path / 'r.npz'),
                           env=_env(), capture_output=True, text=True, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 2, out
-    assert 'agent_0' in out and 'nothing else is started' in out and 'Traceback' not in out
+    assert "'lockstep_timeout'" in out and 'nothing else is started' in out and 'Traceback' not in out
     pids = json.loads((tmp_path / 'logs' / 'pids.json').read_text())
-    assert sorted(pids) == ['agent_0', 'recorder', 'simulator']
+    assert sorted(pids) == ['recorder', 'simulator']
 
 
 @pytest.mark.ros

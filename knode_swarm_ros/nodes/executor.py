@@ -74,6 +74,7 @@ class _Interrupts:
 
     def __init__(self):
         self.signal: Optional[int] = None
+        self.raising = False  # while the node is built (torch import, policy load: seconds)
         self._old = {}
 
     def __enter__(self):
@@ -86,11 +87,18 @@ class _Interrupts:
 
     def _note(self, signum, _frame) -> None:
         self.signal = signum
+        if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
+            self.raising = False
+            raise _StartupInterrupted()
 
     def __exit__(self, *exc):
         for sig, old in self._old.items():
             signal.signal(sig, old)
         return False
+
+
+class _StartupInterrupted(BaseException):
+    """A signal while the node was being built (a BaseException: node code does not catch it)."""
 
 
 def _teardown(executor, node: Optional[Node]) -> None:
@@ -135,7 +143,11 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
             except RCLError as exc:
                 raise ConfigError(f'cannot parse the ROS arguments: {_first_line(exc)}') from None
             if interrupts.signal is None:
-                node = make_node()
+                interrupts.raising = True
+                try:
+                    node = make_node()
+                finally:
+                    interrupts.raising = False
             if interrupts.signal is None:
                 executor = make_executor()
                 executor.add_node(node)
@@ -144,7 +156,7 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
         except ConfigError as exc:
             print(f'knode_swarm_ros {name}: error: {exc}', file=sys.stderr)
             code = EXIT_CONFIG
-        except (KeyboardInterrupt, ExternalShutdownException):
+        except (KeyboardInterrupt, ExternalShutdownException, _StartupInterrupted):
             pass
         except Exception as exc:  # report, then exit non-zero instead of a bare traceback
             if interrupts.signal is None and rclpy.ok():  # not merely cut short by a shutdown

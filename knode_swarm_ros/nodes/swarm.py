@@ -703,19 +703,20 @@ def _file_identity(path: Path):
 
 def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children,
                      t0: float) -> Optional[int]:
-    """Start the simulator and the recorder, then one agent, then the others, each stage once the
-    previous one is past its checks (its log says so): a refused parameter or file stops the run
-    before hundreds of agents load torch. Returns an exit status when a stage failed."""
+    """Start the simulator and the recorder, then, once both are past their checks (their logs
+    say so), the agents: a refused parameter or file stops the run before hundreds of agents
+    load torch. (An agent that refuses its configuration stops the run in _supervise; agents are
+    not staged further: under load, one agent's start-up is tens of seconds that the simulator's
+    start-up timeout would lose.) Returns an exit status when the first stage failed."""
     a = plan.args
     names = list(commands)
     agents = [n for n in names if n.startswith('agent_')]
-    stages = [[n for n in names if not n.startswith('agent_')]] + ([agents[:1]] if agents else [])
-    for stage in stages + [agents[1:]]:
+    for stage in ([n for n in names if n not in agents], agents):
         for name in stage:
             echo = 'none' if a.quiet else 'problems' if name.startswith('agent_') else 'all'
             children.add(start_child(name, commands[name], env, plan.run_dir, echo))
-        if stage is not stages[-1] and stage is not stages[0]:
-            break  # the last agents are supervised with the rest of the run
+        if stage is agents:
+            break  # supervised with the rest of the run
         waiting = [children.items[n] for n in stage]
         while any(not c.marked for c in waiting):
             children.pump(0.1)
