@@ -93,3 +93,9 @@ def test_an_agent_joining_mid_run_with_delay_does_not_wait_for_steps_before_its_
         Y, mask = neighbour_matrix_single(0, states[s][0], Z, 2, policy.d_cr, policy.k)
         np.testing.assert_array_equal(policy.calls[-1][0][0], Y)
     assert logic.counters['gave_up'] == 0 and logic.status()['gone'] == []
+
+
+def test_a_state_without_a_robot_id_is_recorded_as_robot_minus_one():
+    logic = logic_for(SumPolicy())
+    assert logic.receive(None, 5, z(0)) == 'unknown_id'
+    assert logic.last_drop == ('unknown_id', -1, 5)

@@ -112,6 +112,24 @@ def test_single_robot_builder_equals_batched_builder_bit_for_bit():
         np.testing.assert_array_equal(mi, mask[i])
 
 
+def test_builders_agree_with_fewer_robots_than_rows_and_k_one():
+    # 3 robots, k = 6: every builder pads. Batched over 4 frames the leading axes differ from
+    # the robot count, and the single-robot builder has one query row (mutation survivors).
+    rng = np.random.default_rng(6)
+    states = rng.normal(scale=1.0, size=(4, 3, 4))
+    Y, mask = neighbour_matrices(states, 2, 50.0, 6, tau=0)
+    assert Y.shape == (4, 3, 6, 4)
+    np.testing.assert_array_equal(mask, np.broadcast_to([1, 1, 1, 0, 0, 0], (4, 3, 6)))
+    for t in range(4):
+        for i in range(3):
+            Yi, mi = neighbour_matrix_single(i, states[t, i], states[t], 2, 50.0, 6)
+            np.testing.assert_array_equal(Yi, Y[t, i])
+            np.testing.assert_array_equal(mi, mask[t, i])
+    Y1, m1 = neighbour_matrix_single(1, states[0, 1], states[0], 2, 50.0, 1)
+    np.testing.assert_array_equal(Y1, states[0, 1:2])
+    np.testing.assert_array_equal(m1, [True])
+
+
 def test_batched_over_time_and_trajectories_equals_per_snapshot():
     rng = np.random.default_rng(2)
     states = rng.normal(scale=4.0, size=(3, 7, 9, 4))

@@ -170,8 +170,12 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
     shm_before = swarm.shm_snapshot()
     record = tmp_path / 'kill.npz'
     steps = 600
+    # The simulator holds a robot after --lockstep-timeout wall seconds without its command. A
+    # live agent slowed down past it by a loaded machine is held too, but rejoins with its next
+    # command, so only robot 2 is lost at the end whatever the load; 3 s (not 1 s) keeps such
+    # false alarms rare without making the run long.
     run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 5, '--steps', steps, '--seed', 1,
-                   '--lockstep-timeout', 1.0, '--record', record)
+                   '--lockstep-timeout', 3.0, '--record', record)
     assert run.wait_for('ready after'), run.output
     victim = _pids(tmp_path)['agent_2']
     os.kill(victim, signal.SIGKILL)
