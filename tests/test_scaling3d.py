@@ -134,6 +134,22 @@ def test_scaling_driver_tiny_configuration(tmp_path):
     assert "| 50 |" in text and "subswarms truth" in text and "50: amd_within_15%" in text
     assert summary_lines(s)[0].startswith("## Scaling (2 starts per size, 6 steps")
 
+    # Sizes run as separate processes merge back into the same study.
+    from training.scaling3d import main as merge_main
+    for i, n in enumerate((6, 50)):
+        part = {**s, "rows": [s["rows"][i]], "sizes": [n], "escape_events": {str(n): s["escape_events"][str(n)]},
+                "curves": {str(n): s["curves"][str(n)]}}
+        if n == 6:
+            part["example"] = {**s["example"], "robots": 6}
+        os.makedirs(tmp_path / f"part{n}")
+        (tmp_path / f"part{n}" / "results.json").write_text(json.dumps({"policy": "p.pt", "scaling": part}))
+    parts = [str(tmp_path / f"part{n}" / "results.json") for n in (50, 6)]
+    assert merge_main(["--merge", *parts, "--out", str(tmp_path / "merged")]) == 0
+    m = json.loads((tmp_path / "merged" / "results.json").read_text())["scaling"]
+    assert m["sizes"] == [6, 50] and m["rows"] == s["rows"] and m["goal_check"] == s["goal_check"]
+    assert m["example"] == s["example"] and (tmp_path / "merged" / "departures.png").stat().st_size > 0
+    assert merge_main(["--merge", parts[0], parts[0], "--out", str(tmp_path / "bad")]) == 2   # a size twice
+
 
 def test_scaling_driver_bad_arguments(tmp_path, capsys):
     from training.evaluate import main

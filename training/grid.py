@@ -51,16 +51,18 @@ def perturbed_starts(z0: np.ndarray, rollouts: int, perturb: float, position_dim
     return out
 
 
-def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts: int = 1, perturb: float = 1e-3
-                  ) -> Dict[str, Any]:
+def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts: int = 1, perturb: float = 1e-3,
+                  steps: Optional[int] = None) -> Dict[str, Any]:
     """Metrics of a cell's policy: ``rollouts`` rollouts from each of the first ``trajectories`` test
-    starts (:func:`perturbed_starts`), each compared with its start's ground truth. boids3d adds
+    starts (:func:`perturbed_starts`) over ``steps`` steps (default: the test trajectories' length),
+    each compared with its start's ground truth. boids3d adds
     the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling3d`."""
     from knode_swarm_ros.core import load_trajectories
     policy = load_policy(policy_path)
     spec = get_scenario(policy.scenario)
     data = load_trajectories(data_path)
     truth = data.states[data.split("test")[:trajectories]]
+    truth = truth if steps is None else truth[:, :steps + 1]
     z0 = perturbed_starts(truth[:, 0], rollouts, perturb, spec.position_dim)
     pred = rollout_policy(policy, z0, truth.shape[1] - 1)
     truth = np.repeat(truth, rollouts, axis=0)
@@ -71,7 +73,7 @@ def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts:
 
 
 def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectories: int, log=print,
-             rollouts: int = 1, perturb: float = 1e-3) -> Optional[Dict]:
+             rollouts: int = 1, perturb: float = 1e-3, steps: Optional[int] = None) -> Optional[Dict]:
     """Train and evaluate one cell unless finished or claimed by another process.
 
     A finished cell evaluated with other settings (``cell.json`` → ``evaluation``) is evaluated
@@ -79,6 +81,8 @@ def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectori
     """
     done = os.path.join(cell_dir, "cell.json")
     evaluation = {"trajectories": test_trajectories, "rollouts": rollouts, "perturb": perturb if rollouts > 1 else 0.0}
+    if steps is not None:
+        evaluation["steps"] = steps
     previous = json.load(open(done)) if os.path.exists(done) else None
     if previous is not None and (previous.get("evaluation") == evaluation or "error" in previous):
         return previous
@@ -105,7 +109,7 @@ def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectori
                                   if k in ("epochs", "selected", "train_seconds")}
         if "error" not in result:
             result.update(evaluate_cell(os.path.join(cell_dir, "policy.pt"), data_path, test_trajectories,
-                                        rollouts, perturb))
+                                        rollouts, perturb, steps))
         write_json(done, result)
         log(f"{cell_dir}: done")
         return result
@@ -192,10 +196,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--rollouts", type=int, default=1,
                         help="rollouts per test start (copies > 0 with perturbed positions; default 1)")
     parser.add_argument("--perturb", type=float, default=1e-3, help="std of the position perturbation (default 1e-3)")
+    parser.add_argument("--steps", type=int, default=None, help="evaluation steps (default: test trajectory length)")
     parser.add_argument("--collect", action="store_true", help="only gather finished cells")
     args = parser.parse_args(argv)
-    for name in ("trajectories", "rollouts"):
-        if getattr(args, name) < 1:
+    for name in ("trajectories", "rollouts", "steps"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             print(f"error: --{name} must be >= 1, got {getattr(args, name)}", file=sys.stderr)
             return 2
     if not (np.isfinite(args.perturb) and args.perturb >= 0):
@@ -210,7 +215,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                 for k in args.k:
                     cfg = load_config(args.config, {**base, "policy.d_cr": d, "policy.k": k})
                     run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories,
-                             rollouts=args.rollouts, perturb=args.perturb)
+                             rollouts=args.rollouts, perturb=args.perturb, steps=args.steps)
         results = collect(args.out, cfg0["scenario"], args.d_cr, args.k)
     except (ConfigError, DataError, TrajectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -169,18 +169,49 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
             f"{row['truth_amd_final']['mean']:.3f}, {100 * row['amd_rel_error']:+.1f}%), POD-KLD "
             f"{row['pod_kld']['mean']:.3f}, inside {row['starts_inside']}/{ics}, subswarms "
             f"{row['subswarms']['mean']:.2f} (truth {row['truth_subswarms']['mean']:.2f}) [{row['seconds']} s]")
+    s, zp, zt = example
+    result = _assemble(rows, events, curves, {"robots": int(max(sizes)), "start": s, "prediction": zp.tolist(),
+                                              "ground truth": zt.tolist()},
+                       {"ics": ics, "steps": steps, "seed": seed, "preset": preset, "subswarm_radius": radius})
+    draw(result, out)
+    return result
+
+
+def _assemble(rows, events, curves, example, settings) -> Dict[str, Any]:
+    return {"sizes": [r["robots"] for r in rows], **settings, "rows": rows, "escape_events": events,
+            "curves": curves, "example": example, "goals": GOALS, "goal_check": goal_check(rows, settings["ics"]),
+            "amd_final_vs_first_size": [r["amd_final"]["mean"] / rows[0]["amd_final"]["mean"] for r in rows]}
+
+
+def draw(s: Dict[str, Any], out: str) -> None:
+    """``scaling.png`` and ``departures.png`` of a study's results ``s``."""
+    rows, ex, radius = s["rows"], s["example"], s["subswarm_radius"]
     boxes = {name: {"prediction": [r["per_start"][pk] for r in rows],
                     **({"ground truth": [r["per_start"][tk] for r in rows]} if tk else {})}
              for name, (pk, tk) in PANELS.items()}
-    figures.scaling_boxes(os.path.join(out, "scaling.png"), list(sizes), boxes, ylabel_prefix="")
-    s, zp, zt = example
-    figures.departures(os.path.join(out, "departures.png"), curves,
+    figures.scaling_boxes(os.path.join(out, "scaling.png"), s["sizes"], boxes, ylabel_prefix="")
+    zp, zt = np.asarray(ex["prediction"]), np.asarray(ex["ground truth"])
+    figures.departures(os.path.join(out, "departures.png"), s["curves"],
                        (zp, group_labels(zp[None], radius)[0]), (zt, group_labels(zt[None], radius)[0]),
-                       spec.box, f"{max(sizes)} boids, start {s} (most subswarms), final frame")
-    return {"sizes": list(sizes), "ics": ics, "steps": steps, "seed": seed, "preset": preset,
-            "subswarm_radius": radius, "rows": rows, "escape_events": events, "curves": curves,
-            "goals": GOALS, "goal_check": goal_check(rows, ics),
-            "amd_final_vs_first_size": [r["amd_final"]["mean"] / rows[0]["amd_final"]["mean"] for r in rows]}
+                       get_scenario("boids3d").box, f"{ex['robots']} boids, start {ex['start']} (most subswarms), final frame")
+
+
+def merge(studies: Sequence[Dict[str, Any]]) -> Dict[str, Any]:
+    """One study from several run at other sizes with the same settings (each size is independent:
+    its ground truth is seeded with ``seed + n``), sizes in increasing order."""
+    keys = ("ics", "steps", "seed", "preset", "subswarm_radius")
+    for s in studies[1:]:
+        for key in keys:
+            if s[key] != studies[0][key]:
+                raise ValueError(f"cannot merge scaling studies with different {key}: {s[key]} vs {studies[0][key]}")
+    rows = sorted((r for s in studies for r in s["rows"]), key=lambda r: r["robots"])
+    if len({r["robots"] for r in rows}) != len(rows):
+        raise ValueError("cannot merge scaling studies that share a size")
+    events = {k: v for s in studies for k, v in s["escape_events"].items()}
+    curves = {str(r["robots"]): next(s["curves"][str(r["robots"])] for s in studies if str(r["robots"]) in s["curves"])
+              for r in rows}
+    example = max((s["example"] for s in studies), key=lambda e: e["robots"])
+    return _assemble(rows, events, curves, example, {k: studies[0][k] for k in keys})
 
 
 def goal_check(rows: Sequence[Dict[str, Any]], ics: int) -> Dict[str, Any]:
@@ -222,3 +253,37 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
                   f"{np.median([e['group'] for e in ev]):.0f}; back inside at the end: "
                   f"{sum(e['inside_at_end'] for e in ev)}.", ""]
     return lines
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m training.scaling3d --merge A/results.json B/results.json --out DIR``: one study from
+    ``training.evaluate --scaling`` runs of one policy at different sizes (run in parallel)."""
+    import argparse
+    import json
+    import sys
+    from .common import write_json
+    parser = argparse.ArgumentParser(prog="python -m training.scaling3d", description=main.__doc__.split("\n")[0])
+    parser.add_argument("--merge", nargs="+", required=True, help="results.json files of training.evaluate --scaling")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args(argv)
+    try:
+        runs = [json.load(open(path)) for path in args.merge]
+        policies = {r.get("policy") for r in runs}
+        if len(policies) != 1:
+            raise ValueError(f"--merge: the results come from different policies: {sorted(map(str, policies))}")
+        merged = merge([r["scaling"] for r in runs])
+    except (OSError, ValueError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    os.makedirs(args.out, exist_ok=True)
+    write_json(os.path.join(args.out, "results.json"), {**runs[0], "scaling": merged, "merged_from": args.merge})
+    draw(merged, args.out)
+    lines = ["# Scaling study: boids3d", "", f"- policy: `{policies.pop()}`", ""] + summary_lines(merged)
+    with open(os.path.join(args.out, "summary.md"), "w") as fh:
+        fh.write("\n".join(lines + ["Figures: scaling.png, departures.png", ""]))
+    print(f"wrote {args.out}/results.json, summary.md and figures")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
