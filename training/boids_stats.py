@@ -10,7 +10,7 @@ import numpy as np
 
 from knode_swarm_ros.core import amd, pod_energy
 
-__all__ = ["speeds", "flockmates", "alignment", "subgroups", "wall_distance", "summary"]
+__all__ = ["speeds", "flockmates", "alignment", "group_labels", "subgroups", "wall_distance", "summary"]
 
 PERCEPTION_RADIUS = 2.5
 BOX = 5.0
@@ -46,17 +46,24 @@ def alignment(states: np.ndarray, radius: float = PERCEPTION_RADIUS) -> np.ndarr
     return np.divide(total, count, out=np.full(count.shape, np.nan), where=count > 0)
 
 
+def group_labels(states: np.ndarray, radius: float = PERCEPTION_RADIUS) -> np.ndarray:
+    """Connected group of each boid (boids linked when within ``radius``, transitively), ``[..., T, n]``:
+    the index of the group's lowest-index member."""
+    near = _pairs(states) <= radius
+    n = near.shape[-1]
+    reach = (near | np.eye(n, dtype=bool)).astype(np.float32)
+    # Transitive closure by repeated boolean squaring: log2(n) matrix products (float32 matmul
+    # uses BLAS; entries stay exact 0/1 after the threshold).
+    for _ in range(int(np.ceil(np.log2(max(n, 2))))):
+        reach = (np.matmul(reach, reach) > 0).astype(np.float32)
+    return np.argmax(reach > 0, axis=-1)
+
+
 def subgroups(states: np.ndarray, radius: float = PERCEPTION_RADIUS) -> np.ndarray:
     """Number of connected groups (boids linked when within ``radius``) per frame, ``[..., T]``."""
-    near = _pairs(states) <= radius
-    lead, n = near.shape[:-2], near.shape[-1]
-    reach = near | np.eye(n, dtype=bool)
-    # Transitive closure by repeated boolean squaring: log2(n) matrix products.
-    for _ in range(int(np.ceil(np.log2(max(n, 2))))):
-        reach = reach | (np.einsum("...ij,...jk->...ik", reach.astype(np.int32), reach.astype(np.int32)) > 0)
+    labels = group_labels(states, radius)
     # Each group is counted once through its lowest-index member.
-    first = np.argmax(reach, axis=-1)
-    return (first == np.arange(n)).sum(axis=-1).reshape(lead)
+    return (labels == np.arange(labels.shape[-1])).sum(axis=-1)
 
 
 def wall_distance(states: np.ndarray, box: float = BOX) -> np.ndarray:

@@ -3,12 +3,17 @@
     python -m training.evaluate --policy knode_swarm_ros/policies/flock2d.pt --data data/flock2d.npz --out out/eval_flock2d
     python -m training.evaluate ... --scaling                       # + scaling study (default: 10, 50, 90 robots, 15 ICs)
     python -m training.evaluate ... --scaling --sizes 10 20 30 40 50 60 70 80 90 --ics 15   # the paper's full study
+    python -m training.evaluate --policy knode_swarm_ros/policies/boids3d_unity.pt --preset published --out DIR \
+        --scaling --sizes 10 20 30 40 50 60 70 80 90 --ics 15 --scaling-steps 1700   # scaling only (no --data)
 
 Rollouts use the canonical semantics (:func:`knode_swarm_ros.core.rollout`) from the first
 frame of the test trajectories (``meta.split.test``, the first ``--trajectories``, default 20)
 for as many steps as the ground truth has. Writes ``metrics.png``, ``snapshots.png``
 (boids3d also ``pod.png``; with ``--scaling`` ``scaling.png``), ``results.json`` and
-``summary.md`` under ``--out``.
+``summary.md`` under ``--out``. Without ``--data`` only the scaling study runs (``--scaling`` and
+``--scaling-steps`` required). boids3d scaling is :mod:`training.scaling3d` (escapes, subswarms,
+``departures.png``); ``--preset`` picks the ground truth the policy was trained on (boids3d
+``paper`` for our boids, ``published`` for the Unity recordings).
 """
 from __future__ import annotations
 
@@ -63,9 +68,12 @@ def goal_check(scenario: str, fm: Dict[str, Any]) -> Dict[str, Any]:
 
 def evaluate(policy_path: str, data_path: str, out: str, trajectories: int = 20, steps: Optional[int] = None,
              scaling: bool = False, sizes: Sequence[int] = (10, 50, 90), ics: int = 15,
-             scaling_steps: Optional[int] = None, seed: int = 1234, log=print) -> Dict[str, Any]:
+             scaling_steps: Optional[int] = None, seed: int = 1234, log=print,
+             preset: str = "paper") -> Dict[str, Any]:
     """Run the evaluation and write figures, ``results.json`` and ``summary.md``; returns the results."""
     policy = load_policy(policy_path)
+    if data_path is None:
+        return scaling_only(policy, policy_path, out, sizes, ics, scaling_steps, seed, preset, log)
     spec = get_scenario(policy.scenario)
     data = load_trajectories(data_path, scenario=policy.scenario)
     test = data.split("test")[:trajectories]
@@ -117,22 +125,49 @@ def evaluate(policy_path: str, data_path: str, out: str, trajectories: int = 20,
         results["rollouts_inside"] = int(np.sum(fm["stays_inside"]))
     results["goal_check"] = goal_check(spec.name, fm) if finite else {"finite": False}
     if scaling:
-        results["scaling"] = scaling_study(policy, out, sizes, ics, scaling_steps or (T - 1), seed, log)
+        results["scaling"] = scaling_study(policy, out, sizes, ics, scaling_steps or (T - 1), seed, log, preset)
     write_json(os.path.join(out, "results.json"), results)
     write_summary(os.path.join(out, "summary.md"), results)
     log(f"wrote {out}/results.json, summary.md and figures ({rollout_s:.1f} s of rollouts)")
     return results
 
 
-def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, seed: int, log=print) -> Dict[str, Any]:
+def scaling_only(policy, policy_path: str, out: str, sizes: Sequence[int], ics: int, steps: Optional[int],
+                 seed: int, preset: str, log=print) -> Dict[str, Any]:
+    """The scaling study without a test set: ``results.json`` and ``summary.md`` hold only it."""
+    if steps is None:
+        raise ValueError("--scaling-steps is required without --data (no ground truth sets the length)")
+    os.makedirs(out, exist_ok=True)
+    results = {"policy": os.path.abspath(policy_path), "scenario": policy.scenario, "dt": policy.dt,
+               "policy_meta": {k: policy.meta.get(k) for k in ("k", "d_cr", "tau", "frame", "command_limit", "hidden")},
+               "scaling": scaling_study(policy, out, sizes, ics, steps, seed, log, preset)}
+    write_json(os.path.join(out, "results.json"), results)
+    lines = [f"# Scaling study: {policy.scenario}", "", f"- policy: `{results['policy']}`", ""]
+    lines += _scaling_lines(results["scaling"])
+    with open(os.path.join(out, "summary.md"), "w") as fh:
+        fh.write("\n".join(lines + ["Figures: " + ", ".join(_scaling_figures(policy.scenario)), ""]))
+    log(f"wrote {out}/results.json, summary.md and figures")
+    return results
+
+
+def _scaling_figures(scenario: str) -> List[str]:
+    return ["scaling.png", "departures.png"] if scenario == "boids3d" else ["scaling.png"]
+
+
+def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, seed: int, log=print,
+                  preset: str = "paper") -> Dict[str, Any]:
     """Roll the policy out at several swarm sizes from ground-truth initial conditions.
 
-    Initial conditions come from :func:`knode_swarm_ros.core.groundtruth.simulate` (flock2d: the
-    paper's disk of radius sqrt(n), i.e. the training density; boids3d: the spawn ball in the
-    fixed cube, so density grows with n), which also gives the ground truth at each size.
+    Initial conditions come from :func:`knode_swarm_ros.core.groundtruth.simulate` with ``preset``
+    (flock2d: the paper's disk of radius sqrt(n), i.e. the training density; boids3d: the spawn
+    ball in the fixed cube, so density grows with n), which also gives the ground truth at each
+    size. boids3d: :func:`training.scaling3d.scaling_study`.
     """
     from knode_swarm_ros.core.groundtruth import simulate
     spec = get_scenario(policy.scenario)
+    if spec.name == "boids3d":
+        from . import scaling3d
+        return scaling3d.scaling_study(policy, out, sizes, ics, steps, seed, preset, log=log)
     rows: List[Dict[str, Any]] = []
     boxes: Dict[str, Dict[str, List[List[float]]]] = {}
     names = ["avd", "amd"] if spec.velocity is not None else ["amd", "pod_kld"]
@@ -140,7 +175,7 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
         boxes[name] = {"prediction": []} if name == "pod_kld" else {"prediction": [], "ground truth": []}
     for n in sizes:
         t0 = time.perf_counter()
-        truth = simulate(spec.name, ics, n, steps + 1, seed + n, progress=False)
+        truth = simulate(spec.name, ics, n, steps + 1, seed + n, preset=preset, progress=False)
         pred = rollout_policy(policy, truth[:, 0], steps)
         fm = final_metrics(spec, pred, truth, dt=policy.dt)
         row = {"robots": int(n), "seconds": round(time.perf_counter() - t0, 1)}
@@ -184,26 +219,31 @@ def write_summary(path: str, r: Dict[str, Any]) -> None:
         lines.append(f"| rollouts staying in the cube | {r['rollouts_inside']} / {len(r['test_trajectories'])} | |")
     lines += ["", f"Goals (issue 4): {r['goals']}", "", "```", *(f"{k}: {v}" for k, v in r["goal_check"].items()), "```"]
     if "scaling" in r:
-        s = r["scaling"]
-        lines += ["", f"## Scaling ({s['ics']} initial conditions per size, {s['steps']} steps)", "",
-                  "| robots | amd pred | amd truth | " + ("avd pred | avd truth |" if "avd_final" in s["rows"][0]
-                                                         else "POD-KLD | in cube |"),
-                  "| --- | --- | --- | --- | --- |"]
-        for row in s["rows"]:
-            extra = (f"{row['avd_final']['mean']:.3g} | {row['truth_avd_final']['mean']:.3g} |" if "avd_final" in row
-                     else f"{row['pod_kld']['mean']:.3g} | {row.get('stays_inside', '-')} |")
-            lines.append(f"| {row['robots']} | {row['amd_final']['mean']:.3g} | {row['truth_amd_final']['mean']:.3g} | "
-                         + extra)
+        lines += [""] + _scaling_lines(r["scaling"])
     lines += ["", "Figures: metrics.png, snapshots.png" + (", pod.png" if "pod_kld" in f else "")
-              + (", scaling.png" if "scaling" in r else ""), ""]
+              + ("".join(", " + f for f in _scaling_figures(r["scenario"])) if "scaling" in r else ""), ""]
     with open(path, "w") as fh:
         fh.write("\n".join(lines))
+
+
+def _scaling_lines(s: Dict[str, Any]) -> List[str]:
+    """Markdown section of a scaling study's results."""
+    if "escape_events" in s:                      # boids3d: training.scaling3d
+        from .scaling3d import summary_lines
+        return summary_lines(s)
+    lines = [f"## Scaling ({s['ics']} initial conditions per size, {s['steps']} steps)", "",
+             "| robots | amd pred | amd truth | avd pred | avd truth |", "| --- | --- | --- | --- | --- |"]
+    for row in s["rows"]:
+        lines.append(f"| {row['robots']} | {row['amd_final']['mean']:.3g} | {row['truth_amd_final']['mean']:.3g} | "
+                     f"{row['avd_final']['mean']:.3g} | {row['truth_avd_final']['mean']:.3g} |")
+    return lines
 
 
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", required=True, help="policy file (.pt)")
-    parser.add_argument("--data", required=True, help="trajectory file with a test split (ground truth)")
+    parser.add_argument("--data", default=None,
+                        help="trajectory file with a test split (ground truth); without it only --scaling runs")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--trajectories", type=int, default=20, help="test trajectories to roll out (default 20)")
     parser.add_argument("--steps", type=int, default=None, help="steps per rollout (default: ground-truth length)")
@@ -212,12 +252,26 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--ics", type=int, default=15, help="initial conditions per size for --scaling")
     parser.add_argument("--scaling-steps", type=int, default=None, help="steps per scaling rollout")
     parser.add_argument("--seed", type=int, default=1234, help="seed of the scaling initial conditions")
+    parser.add_argument("--preset", default="paper",
+                        help="ground-truth preset of the scaling study (boids3d: paper | published; flock2d: a variant)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for rollouts)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    if args.data is None and not args.scaling:
+        parser.error("--data is required unless --scaling is given")
+    for name in ("sizes", "ics", "scaling_steps"):
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < (2 if name == "sizes" else 1):
+            print(f"error: --{name.replace('_', '-')} must be >= {2 if name == 'sizes' else 1}, got {value}",
+                  file=sys.stderr)
+            return 2
     try:
+        from knode_swarm_ros.core.groundtruth import presets
+        known = presets(load_policy(args.policy).scenario)
+        if args.preset not in known:
+            raise ValueError(f"--preset {args.preset!r}: unknown; known: {', '.join(known)}")
         evaluate(args.policy, args.data, args.out, args.trajectories, args.steps, args.scaling, args.sizes,
-                 args.ics, args.scaling_steps, args.seed)
+                 args.ics, args.scaling_steps, args.seed, preset=args.preset)
     except (PolicyError, TrajectoryError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -102,7 +102,8 @@ def pod_bars(path: str, pred_energy: np.ndarray, true_energy: np.ndarray, kld: S
     _save(fig, path)
 
 
-def scaling_boxes(path: str, sizes: Sequence[int], metrics: Dict[str, Dict[str, List[List[float]]]]) -> None:
+def scaling_boxes(path: str, sizes: Sequence[int], metrics: Dict[str, Dict[str, List[List[float]]]],
+                  ylabel_prefix: str = "final ") -> None:
     """Box plots per swarm size: ``metrics = {name: {"prediction": [[per-IC] per size], "ground truth": ...}}``."""
     fig, axes = plt.subplots(1, len(metrics), figsize=(5.5 * len(metrics), 3.8), squeeze=False)
     for ax, (name, series) in zip(axes[0], metrics.items()):
@@ -118,11 +119,51 @@ def scaling_boxes(path: str, sizes: Sequence[int], metrics: Dict[str, Dict[str, 
         ax.set_xticks(np.arange(len(sizes)))
         ax.set_xticklabels([str(s) for s in sizes])
         ax.set_xlabel("robots")
-        ax.set_ylabel(f"final {name}")
+        ax.set_ylabel(f"{ylabel_prefix}{name}")
         if name == "avd":
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    _save(fig, path)
+
+
+def departures(path: str, curves: Dict[str, Dict], pred: tuple, truth: tuple, box: float, title: str) -> None:
+    """Where a learnt 3D swarm departs from the boids, over sizes.
+
+    ``curves = {size: {"t": [P], "subswarms"|"escaped"|"amd": {"prediction": [P], "ground truth": [P]}}}``
+    (means over starts); ``pred``/``truth``: ``(frame [n, 6], group labels [n])`` of one final frame,
+    drawn as x-y and x-z projections coloured by subswarm, with the cube.
+    """
+    fig = plt.figure(figsize=(15, 7.5))
+    grid = fig.add_gridspec(2, 12)
+    cmap = plt.get_cmap("viridis")
+    sizes = list(curves)
+    for i, (key, label) in enumerate((("subswarms", "subswarms (radius 2.5)"),
+                                      ("escaped", "share of boids that have left the cube"), ("amd", "amd"))):
+        ax = fig.add_subplot(grid[0, 4 * i:4 * i + 4])
+        for j, n in enumerate(sizes):
+            c = cmap(j / max(len(sizes) - 1, 1))
+            ax.plot(curves[n]["t"], curves[n][key]["prediction"], color=c, label=f"{n}")
+            ax.plot(curves[n]["t"], curves[n][key]["ground truth"], color=c, ls="--", lw=0.8)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        if i == 0:
+            ax.legend(fontsize=7, ncol=3, title="boids (solid: policy, dashed: truth)", title_fontsize=7)
+    for c, (name, (z, labels)) in enumerate((("policy", pred), ("ground truth", truth))):
+        for r, (a, b) in enumerate(((0, 1), (0, 2))):
+            ax = fig.add_subplot(grid[1, 6 * c + 3 * r:6 * c + 3 * r + 3])
+            _, groups = np.unique(labels, return_inverse=True)
+            ax.scatter(z[:, a], z[:, b], c=groups, cmap="tab20", s=10)
+            ax.plot([-box, box, box, -box, -box], [-box, -box, box, box, -box], color="k", lw=0.8)
+            lim = max(box + 0.5, float(np.abs(z[:, [a, b]]).max()) + 0.5)
+            ax.set_xlim(-lim, lim)
+            ax.set_ylim(-lim, lim)
+            ax.set_aspect("equal")
+            ax.set_xlabel("xyz"[a])
+            ax.set_ylabel("xyz"[b])
+            ax.set_title(f"{name}: {groups.max() + 1} subswarms", fontsize=8)
+    fig.suptitle(title, fontsize=10)
     _save(fig, path)
 
 

@@ -2,12 +2,17 @@
 
     python -m training.grid --config config/train_flock2d.yaml --data data/flock2d.npz --out runs/grid_flock2d \\
         --d-cr 2 3.5 5 --k 3 6 9 [--set training.epochs=6]
+    python -m training.grid --config config/train_boids3d.yaml --data data/boids3d.npz --out runs/grid_boids3d \
+        --d-cr 1 2 3 --k 3 6 9 --rollouts 5      # boids are chaotic: 5 rollouts per test start
 
 Parallel-safe and resumable: every cell trains in its own directory ``OUT/dcr<d>_k<k>/``,
 claimed with an exclusive lock file; a finished cell (``cell.json``) is skipped, an
 interrupted one resumes from its checkpoint (run the same command again, or several copies
-of it at once to use several cores). ``--collect`` only gathers finished cells. Writes
-``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``summary.md`` under ``--out``.
+of it at once to use several cores). ``--collect`` only gathers finished cells; a finished cell
+evaluated with other ``--trajectories``/``--rollouts``/``--perturb`` is evaluated again without
+training. Writes ``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``summary.md``
+under ``--out`` (boids3d: amd, POD-KLD, share of boids leaving the cube, share of rollouts with
+an escape, subswarms).
 """
 from __future__ import annotations
 
@@ -33,11 +38,54 @@ def cell_name(d_cr: float, k: int) -> str:
     return f"dcr{d_cr:g}_k{k}"
 
 
-def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectories: int, log=print) -> Optional[Dict]:
-    """Train and evaluate one cell unless finished or claimed by another process."""
+def perturbed_starts(z0: np.ndarray, rollouts: int, perturb: float, position_dim: int, seed: int = 0) -> np.ndarray:
+    """``rollouts`` copies of every start ``z0 [S, n, d]`` -> ``[S * rollouts, n, d]`` (start-major).
+
+    Copy 0 is the start itself; copy r > 0 has Gaussian noise of std ``perturb`` on the positions
+    (seed ``seed + r``): several rollouts of one start sample the chaotic spread of the swarm.
+    """
+    out = np.repeat(np.asarray(z0, dtype=np.float64), rollouts, axis=0)
+    for r in range(1, rollouts):
+        rng = np.random.default_rng(seed + r)
+        out[r::rollouts, :, :position_dim] += perturb * rng.standard_normal(out[r::rollouts, :, :position_dim].shape)
+    return out
+
+
+def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts: int = 1, perturb: float = 1e-3,
+                  steps: Optional[int] = None) -> Dict[str, Any]:
+    """Metrics of a cell's policy: ``rollouts`` rollouts from each of the first ``trajectories`` test
+    starts (:func:`perturbed_starts`) over ``steps`` steps (default: the test trajectories' length),
+    each compared with its start's ground truth. boids3d adds
+    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling3d`."""
+    from knode_swarm_ros.core import load_trajectories
+    policy = load_policy(policy_path)
+    spec = get_scenario(policy.scenario)
+    data = load_trajectories(data_path)
+    truth = data.states[data.split("test")[:trajectories]]
+    truth = truth if steps is None else truth[:, :steps + 1]
+    z0 = perturbed_starts(truth[:, 0], rollouts, perturb, spec.position_dim)
+    pred = rollout_policy(policy, z0, truth.shape[1] - 1)
+    truth = np.repeat(truth, rollouts, axis=0)
+    if spec.name == "boids3d":
+        from .scaling3d import size_metrics
+        return size_metrics(pred, truth, policy.dt)
+    return final_metrics(spec, pred, truth, dt=policy.dt)
+
+
+def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectories: int, log=print,
+             rollouts: int = 1, perturb: float = 1e-3, steps: Optional[int] = None) -> Optional[Dict]:
+    """Train and evaluate one cell unless finished or claimed by another process.
+
+    A finished cell evaluated with other settings (``cell.json`` → ``evaluation``) is evaluated
+    again from its ``policy.pt`` without training.
+    """
     done = os.path.join(cell_dir, "cell.json")
-    if os.path.exists(done):
-        return json.load(open(done))
+    evaluation = {"trajectories": test_trajectories, "rollouts": rollouts, "perturb": perturb if rollouts > 1 else 0.0}
+    if steps is not None:
+        evaluation["steps"] = steps
+    previous = json.load(open(done)) if os.path.exists(done) else None
+    if previous is not None and (previous.get("evaluation") == evaluation or "error" in previous):
+        return previous
     os.makedirs(cell_dir, exist_ok=True)
     lock = os.path.join(cell_dir, ".lock")
     try:
@@ -48,19 +96,20 @@ def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectori
     try:
         os.write(fd, str(os.getpid()).encode())
         os.close(fd)
-        resume = os.path.exists(os.path.join(cell_dir, "checkpoint.pt"))
-        result: Dict[str, Any] = {"d_cr": cfg["policy"]["d_cr"], "k": cfg["policy"]["k"]}
-        try:
-            Trainer(cfg, data_path, cell_dir, resume=resume, progress=False, log=lambda *a: None).run()
-        except DivergenceError as exc:
-            result["error"] = str(exc)
+        result: Dict[str, Any] = {"d_cr": cfg["policy"]["d_cr"], "k": cfg["policy"]["k"], "evaluation": evaluation}
+        if previous is None:
+            resume = os.path.exists(os.path.join(cell_dir, "checkpoint.pt"))
+            try:
+                Trainer(cfg, data_path, cell_dir, resume=resume, progress=False, log=lambda *a: None).run()
+            except DivergenceError as exc:
+                result["error"] = str(exc)
+        summary = os.path.join(cell_dir, "summary.json")
+        if os.path.exists(summary):
+            result["training"] = {k: v for k, v in json.load(open(summary)).items()
+                                  if k in ("epochs", "selected", "train_seconds")}
         if "error" not in result:
-            from knode_swarm_ros.core import load_trajectories
-            policy = load_policy(os.path.join(cell_dir, "policy.pt"))
-            data = load_trajectories(data_path)
-            truth = data.states[data.split("test")[:test_trajectories]]
-            pred = rollout_policy(policy, truth[:, 0], truth.shape[1] - 1)
-            result.update(final_metrics(get_scenario(policy.scenario), pred, truth, dt=policy.dt))
+            result.update(evaluate_cell(os.path.join(cell_dir, "policy.pt"), data_path, test_trajectories,
+                                        rollouts, perturb, steps))
         write_json(done, result)
         log(f"{cell_dir}: done")
         return result
@@ -69,8 +118,20 @@ def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectori
             os.unlink(lock)
 
 
+#: Heat-map metrics per scenario: name -> statistics. ``left_cube``: share of rollouts in which a boid
+#: leaves the cube (a 0/1 per rollout, so only its mean).
+GRID_METRICS = {"flock2d": {"avd_final": ("mean", "median"), "amd_final": ("mean", "median")},
+                "boids3d": {"amd_final": ("mean", "median"), "pod_kld": ("mean", "median"),
+                            "escaped": ("mean",), "left_cube": ("mean",), "subswarms": ("mean", "median")}}
+
+
+def _cell_values(cell: Dict[str, Any], name: str) -> Optional[np.ndarray]:
+    if name == "left_cube" and "stays_inside" in cell:
+        return 1.0 - np.asarray(cell["stays_inside"], dtype=np.float64)
+    return np.asarray(cell[name], dtype=np.float64) if name in cell else None
+
+
 def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[str, Any]:
-    names = ["avd_final", "amd_final"] if scenario == "flock2d" else ["amd_final", "pod_kld"]
     cells = {}
     for d in d_crs:
         for k in ks:
@@ -78,29 +139,44 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
             if os.path.exists(path):
                 cells[(d, k)] = json.load(open(path))
     tables: Dict[str, Any] = {}
-    for name in names:
-        for stat, fn in (("mean", np.mean), ("median", np.median)):
+    spread: Dict[str, Any] = {}
+    for name, stats in GRID_METRICS[scenario].items():
+        quart = np.full((len(d_crs), len(ks), 2), np.nan)
+        for stat in stats:
+            fn = np.mean if stat == "mean" else np.median
             grid = np.full((len(d_crs), len(ks)), np.nan)
             for i, d in enumerate(d_crs):
                 for j, k in enumerate(ks):
                     c = cells.get((d, k))
-                    if c is not None and name in c:
-                        grid[i, j] = fn(c[name])
+                    v = None if c is None else _cell_values(c, name)
+                    if v is not None and v.size:
+                        grid[i, j] = fn(v)
+                        quart[i, j] = np.percentile(v, [25, 75])
             tables[f"{name}_{stat}"] = grid.tolist()
             figures.heatmap(os.path.join(out, f"heatmap_{name}_{stat}.png"), grid, d_crs, ks,
                             f"{stat} {name.replace('_final', ' (final)')}")
+        spread[name] = quart.tolist()
     truth = next((c for c in cells.values() if "truth_amd_final" in c), None)
-    results = {"scenario": scenario, "d_cr": d_crs, "k": ks, "tables": tables,
+    results = {"scenario": scenario, "d_cr": d_crs, "k": ks, "tables": tables, "quartiles": spread,
                "finished": [cell_name(d, k) for (d, k) in cells],
+               "evaluation": {cell_name(d, k): c.get("evaluation") for (d, k), c in cells.items()},
+               "training": {cell_name(d, k): c.get("training") for (d, k), c in cells.items()},
                "errors": {cell_name(d, k): c["error"] for (d, k), c in cells.items() if "error" in c},
                "truth": None if truth is None else {key: float(np.mean(truth[key])) for key in truth if key.startswith("truth_")}}
     write_json(os.path.join(out, "results.json"), results)
     lines = [f"# Grid search: {scenario}", "", f"{len(cells)} of {len(d_crs) * len(ks)} cells finished.", ""]
     for key, grid in tables.items():
-        lines += [f"## {key}", "", "| d_cr \\ k | " + " | ".join(map(str, ks)) + " |",
-                  "| --- " * (len(ks) + 1) + "|"]
-        for d, row in zip(d_crs, grid):
-            lines.append(f"| {d:g} | " + " | ".join("-" if not np.isfinite(v) else f"{v:.3g}" for v in row) + " |")
+        name = key.rsplit("_", 1)[0]
+        lines += [f"## {key}" + (" [quartiles over rollouts]" if key.endswith("median") else ""), "",
+                  "| d_cr \\ k | " + " | ".join(map(str, ks)) + " |", "| --- " * (len(ks) + 1) + "|"]
+        for i, (d, row) in enumerate(zip(d_crs, grid)):
+            cells_txt = []
+            for j, v in enumerate(row):
+                txt = "-" if not np.isfinite(v) else f"{v:.3g}"
+                if key.endswith("median") and np.isfinite(v):
+                    txt += f" [{spread[name][i][j][0]:.3g}, {spread[name][i][j][1]:.3g}]"
+                cells_txt.append(txt)
+            lines.append(f"| {d:g} | " + " | ".join(cells_txt) + " |")
         lines.append("")
     if results["truth"]:
         lines.append("Ground truth: " + ", ".join(f"{k} {v:.3g}" for k, v in results["truth"].items()))
@@ -117,8 +193,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--k", type=int, nargs="+", default=[3, 6, 9])
     parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override a config field")
     parser.add_argument("--trajectories", type=int, default=20, help="test trajectories per cell evaluation")
+    parser.add_argument("--rollouts", type=int, default=1,
+                        help="rollouts per test start (copies > 0 with perturbed positions; default 1)")
+    parser.add_argument("--perturb", type=float, default=1e-3, help="std of the position perturbation (default 1e-3)")
+    parser.add_argument("--steps", type=int, default=None, help="evaluation steps (default: test trajectory length)")
     parser.add_argument("--collect", action="store_true", help="only gather finished cells")
     args = parser.parse_args(argv)
+    for name in ("trajectories", "rollouts", "steps"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            print(f"error: --{name} must be >= 1, got {getattr(args, name)}", file=sys.stderr)
+            return 2
+    if not (np.isfinite(args.perturb) and args.perturb >= 0):
+        print(f"error: --perturb must be a finite number >= 0, got {args.perturb}", file=sys.stderr)
+        return 2
     try:
         base = _parse_set(args.set)
         cfg0 = load_config(args.config, base)
@@ -127,7 +214,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             for d in args.d_cr:
                 for k in args.k:
                     cfg = load_config(args.config, {**base, "policy.d_cr": d, "policy.k": k})
-                    run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories)
+                    run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories,
+                             rollouts=args.rollouts, perturb=args.perturb, steps=args.steps)
         results = collect(args.out, cfg0["scenario"], args.d_cr, args.k)
     except (ConfigError, DataError, TrajectoryError) as exc:
         print(f"error: {exc}", file=sys.stderr)

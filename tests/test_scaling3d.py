@@ -1,0 +1,202 @@
+"""The 3D scaling study and grid (issue 17): subswarms, escapes and goals on hand-built swarms with
+known answers; the drivers end to end on tiny configurations."""
+import json
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("matplotlib")
+
+from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy, save_trajectories  # noqa: E402
+from knode_swarm_ros.core.groundtruth import simulate  # noqa: E402
+from training.boids_stats import group_labels, subgroups  # noqa: E402
+from training.scaling3d import (escape_events, escaped, goal_check, outside, subswarm_count,  # noqa: E402
+                                summary_lines)
+
+BOX = 5.0
+
+
+def frame(positions, headings=None):
+    p = np.asarray(positions, dtype=float)
+    h = np.tile([1.0, 0.0, 0.0], (len(p), 1)) if headings is None else np.asarray(headings, dtype=float)
+    return np.concatenate([p, h], axis=1)
+
+
+# ----------------------------------------------------------------------------- subswarms
+
+
+def test_subswarms_of_hand_built_configurations():
+    # Two tight clusters 6 apart, one lone boid: 3 groups, labelled by their lowest-index member.
+    z = frame([[0, 0, 0], [6, 0, 0], [0.5, 0, 0], [6, 1, 0], [0, 0, 4]])
+    assert subgroups(z[None])[0] == 3
+    np.testing.assert_array_equal(group_labels(z[None])[0], [0, 1, 0, 1, 4])
+    # The link is "within the radius" (<=): exactly 2.5 apart links, just beyond does not.
+    assert subgroups(frame([[0, 0, 0], [2.5, 0, 0]])[None])[0] == 1
+    assert subgroups(frame([[0, 0, 0], [2.5 + 1e-6, 0, 0]])[None])[0] == 2
+    assert subgroups(frame([[0, 0, 0], [2.5 + 1e-6, 0, 0]])[None], radius=3.0)[0] == 1
+    # Every boid alone (lattice spacing 3 > 2.5): n groups.
+    lattice = np.array([[x, y, z] for x in range(4) for y in range(4) for z in range(4)], float) * 3.0
+    assert subgroups(frame(lattice)[None])[0] == 64
+
+
+def test_subswarms_close_long_chains_in_any_order():
+    # 90 boids on a chain with links of 2.0: ends 178 apart, one group whatever the numbering;
+    # cutting one link gives two groups.
+    rng = np.random.default_rng(0)
+    chain = np.stack([np.arange(90) * 2.0, np.zeros(90), np.zeros(90)], axis=1)
+    order = rng.permutation(90)
+    assert subgroups(frame(chain[order])[None])[0] == 1
+    cut = chain.copy()
+    cut[40:, 0] += 1.0
+    assert subgroups(frame(cut[order])[None])[0] == 2
+    labels = group_labels(frame(cut[order])[None])[0]
+    assert len(set(labels[order < 40])) == 1 and len(set(labels[order >= 40])) == 1
+
+
+def test_subswarm_count_is_the_mean_over_the_last_frames():
+    one = frame([[0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    three = frame([[0, 0, 0], [3, 0, 0], [-3, 0, 0]])
+    run = np.stack([three, three, one, three])[None]           # [1, 4, 3, 6]
+    np.testing.assert_allclose(subswarm_count(run, last=2), [2.0])
+    np.testing.assert_allclose(subswarm_count(run, last=4), [2.5])
+
+
+# ----------------------------------------------------------------------------- escapes
+
+
+def test_escapes_and_their_diagnostics():
+    dt = 0.1
+    T, n = 5, 3
+    run = np.zeros((T, n, 6))
+    run[..., 3] = 1.0
+    run[:, 0, :3] = [0.0, 0.0, 4.0]
+    run[:, 1, :3] = [0.0, 0.0, 4.5]                 # 0.5 from boid 1: its only neighbour within d_cr 1
+    run[:, 2, :3] = [-4.0, 0.0, 0.0]
+    run[2, 1, 2], run[3, 1, 2] = 5.2, 5.0 + 5e-10    # out at frame 2, back (within tolerance) at frame 3
+    run[4, 2, 0] = -5.3                             # boid 2 leaves through -x at the last frame
+    pred = run[None]
+    np.testing.assert_array_equal(outside(pred, BOX)[0, :, 1], [False, False, True, False, False])
+    np.testing.assert_array_equal(escaped(pred, BOX), [[False, True, True]])
+    events = {e["boid"]: e for e in escape_events(pred, BOX, d_cr=1.0, dt=dt)}
+    assert sorted(events) == [1, 2]
+    e1, e2 = events[1], events[2]
+    assert (e1["frame"], e1["wall"], e1["neighbours"], e1["group"], e1["inside_at_end"]) == (2, "+z", 1, 2, True)
+    assert e1["outward_speed"] == pytest.approx((5.2 - 4.5) / dt)
+    assert (e2["frame"], e2["wall"], e2["neighbours"], e2["group"], e2["inside_at_end"]) == (4, "-x", 0, 1, False)
+    assert e2["t"] == pytest.approx(0.4)
+
+
+def test_goal_check_thresholds():
+    def row(n, rel, inside):
+        return {"robots": n, "amd_rel_error": rel, "starts_inside": inside}
+    check = goal_check([row(10, 0.9, 0), row(50, 0.15, 14), row(90, -0.151, 13)], ics=15)
+    assert check["50: amd_within_15%"] and check["50: inside>=14/15"]
+    assert not check["90: amd_within_15%"] and not check["90: inside>=14/15"]
+    assert not any(key.startswith("10:") for key in check)
+    assert goal_check([row(50, 0.0, 2)], ics=2)["50: inside>=2/2"]     # 14/15 of 2 starts rounds up to 2
+
+
+# ----------------------------------------------------------------------------- drivers
+
+
+def _tiny_policy(tmp_path):
+    torch.manual_seed(0)
+    policy = KNODEPolicy(PolicyConfig("boids3d", **{**DEFAULTS["boids3d"], "hidden": 8}))
+    path = tmp_path / "p.pt"
+    export_policy(policy, path, policy.metadata())
+    return str(path)
+
+
+def test_scaling_driver_tiny_configuration(tmp_path):
+    from training.evaluate import main
+    out = tmp_path / "scaling"
+    args = ["--policy", _tiny_policy(tmp_path), "--out", str(out), "--scaling", "--sizes", "6", "50", "--ics", "2",
+            "--scaling-steps", "6", "--preset", "published"]
+    assert main(args) == 0
+    s = json.loads((out / "results.json").read_text())["scaling"]
+    assert (s["sizes"], s["ics"], s["steps"], s["preset"]) == ([6, 50], 2, 6, "published")
+    assert [r["robots"] for r in s["rows"]] == [6, 50]
+    for r in s["rows"]:
+        for key in ("amd_final", "truth_amd_final", "pod_kld", "escaped", "truth_escaped", "subswarms",
+                    "truth_subswarms"):
+            assert len(r["per_start"][key]) == 2 and set(r[key]) >= {"mean", "median", "q1", "q3"}, key
+        assert 0 <= r["starts_inside"] <= 2 and np.isfinite(r["amd_rel_error"])
+        assert r["truth_starts_inside"] == 2                # the boids never leave their cube
+    assert set(s["escape_events"]) == {"6", "50"} and set(s["curves"]) == {"6", "50"}
+    assert len(s["curves"]["50"]["t"]) == 7 and set(s["curves"]["50"]) == {"t", "subswarms", "escaped", "amd"}
+    assert set(s["goal_check"]) == {"50: amd_within_15%", "50: amd_rel_error", "50: inside>=2/2", "50: starts_inside"}
+    for name in ("scaling.png", "departures.png", "summary.md"):
+        assert (out / name).stat().st_size > 0, name
+    text = (out / "summary.md").read_text()
+    assert "| 50 |" in text and "subswarms truth" in text and "50: amd_within_15%" in text
+    assert summary_lines(s)[0].startswith("## Scaling (2 starts per size, 6 steps")
+
+    # Sizes run as separate processes merge back into the same study.
+    from training.scaling3d import main as merge_main
+    for i, n in enumerate((6, 50)):
+        part = {**s, "rows": [s["rows"][i]], "sizes": [n], "escape_events": {str(n): s["escape_events"][str(n)]},
+                "curves": {str(n): s["curves"][str(n)]}}
+        if n == 6:
+            part["example"] = {**s["example"], "robots": 6}
+        os.makedirs(tmp_path / f"part{n}")
+        (tmp_path / f"part{n}" / "results.json").write_text(json.dumps({"policy": "p.pt", "scaling": part}))
+    parts = [str(tmp_path / f"part{n}" / "results.json") for n in (50, 6)]
+    assert merge_main(["--merge", *parts, "--out", str(tmp_path / "merged")]) == 0
+    m = json.loads((tmp_path / "merged" / "results.json").read_text())["scaling"]
+    assert m["sizes"] == [6, 50] and m["rows"] == s["rows"] and m["goal_check"] == s["goal_check"]
+    assert m["example"] == s["example"] and (tmp_path / "merged" / "departures.png").stat().st_size > 0
+    assert merge_main(["--merge", parts[0], parts[0], "--out", str(tmp_path / "bad")]) == 2   # a size twice
+
+
+def test_scaling_driver_bad_arguments(tmp_path, capsys):
+    from training.evaluate import main
+    pol = _tiny_policy(tmp_path)
+    base = ["--policy", pol, "--out", str(tmp_path / "o"), "--scaling", "--sizes", "6", "--ics", "1"]
+    assert main(base + ["--scaling-steps", "3", "--preset", "nope"]) == 2
+    assert "--preset 'nope'" in capsys.readouterr().err
+    assert main(base) == 2                                   # no --data: the length must be given
+    assert "--scaling-steps" in capsys.readouterr().err
+    assert main(base + ["--scaling-steps", "0"]) == 2
+    assert not os.path.exists(tmp_path / "o" / "results.json")
+
+
+def test_grid_boids3d_rollouts_per_start_and_reevaluation(tmp_path):
+    from training.grid import main as grid_main, perturbed_starts
+    z0 = simulate("boids3d", 2, 5, 1, seed=3, progress=False)[:, 0]
+    z = perturbed_starts(z0, 3, 1e-3, 3)
+    assert z.shape == (6, 5, 6)
+    np.testing.assert_array_equal(z[0::3], z0)               # copy 0 of every start is the start
+    np.testing.assert_array_equal(z[1::3, :, 3:], z0[:, :, 3:])  # headings untouched
+    assert 1e-5 < np.abs(z[1::3, :, :3] - z0[:, :, :3]).max() < 1e-2
+
+    states = simulate("boids3d", 3, 5, 12, seed=1, progress=False)
+    data = tmp_path / "d.npz"
+    save_trajectories(data, states, 1 / 60, "boids3d", {"split": {"train": [0, 1], "test": [2]}})
+    raw = {"scenario": "boids3d", "seed": 0, "policy": {"hidden": 8},
+           "data": {"val_trajectories": 1}, "training": {"epochs": 1, "batch_size": 64, "threads": 1},
+           "selection": {"every": 0}}
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "grid"
+    args = ["--config", str(cfg), "--data", str(data), "--out", str(out), "--d-cr", "2", "--k", "3",
+            "--trajectories", "1"]
+    assert grid_main(args) == 0
+    cell = json.loads((out / "dcr2_k3" / "cell.json").read_text())
+    assert len(cell["amd_final"]) == 1 and cell["evaluation"]["rollouts"] == 1 and cell["training"]["epochs"] == 1
+    trained = os.path.getmtime(out / "dcr2_k3" / "policy.pt")
+    assert grid_main(args + ["--rollouts", "3"]) == 0        # evaluated again, not trained again
+    assert os.path.getmtime(out / "dcr2_k3" / "policy.pt") == trained
+    cell = json.loads((out / "dcr2_k3" / "cell.json").read_text())
+    assert cell["evaluation"] == {"trajectories": 1, "rollouts": 3, "perturb": 1e-3}
+    for key in ("amd_final", "pod_kld", "escaped", "subswarms", "stays_inside"):
+        assert len(cell[key]) == 3, key
+    assert len(set(cell["truth_amd_final"])) == 1             # one ground truth per start
+    results = json.loads((out / "results.json").read_text())
+    for key in ("amd_final_mean", "amd_final_median", "escaped_mean", "left_cube_mean", "pod_kld_median"):
+        assert np.isfinite(results["tables"][key][0][0]), key
+    assert results["tables"]["amd_final_mean"][0][0] == pytest.approx(np.mean(cell["amd_final"]))
+    assert (out / "heatmap_amd_final_median.png").is_file() and (out / "heatmap_left_cube_mean.png").is_file()
+    assert grid_main(args + ["--rollouts", "0"]) == 2
