@@ -282,3 +282,17 @@ def test_config_file_of_the_shipped_multistep_run_is_valid():
         cfg = normalise_config(yaml.safe_load(fh))
     assert cfg["training"]["objective"] == "multi_step"
     assert cfg["training"]["epochs"] == sum(cfg["multistep"]["epochs"])
+
+
+def test_windows_never_hold_a_bad_step():
+    states = np.zeros((2, 12, 1, 4))
+    bad = np.zeros((2, 11), bool)
+    bad[0, 4] = True                       # step 4 -> 5 of trajectory 0
+    bad[1, 0] = True                       # step 0 -> 1 of trajectory 1
+    w = Windows(states, tau=0, bad_steps=bad)
+    clean = {tuple(x) for x in w.clean_starts(3).tolist()}
+    assert clean == {(0, t) for t in (0, 1, 5, 6, 7, 8)} | {(1, t) for t in range(1, 9)}
+    drawn = w.starts(300, 3, torch.Generator().manual_seed(0))
+    assert {tuple(x) for x in drawn.tolist()} <= clean
+    with pytest.raises(ValueError, match="no window of 11 steps"):
+        w.starts(1, 11, None)

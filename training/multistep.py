@@ -37,9 +37,28 @@ class Windows:
     frames t0 + 1 .. t0 + H.
     """
 
-    def __init__(self, states: np.ndarray, tau: int):
+    def __init__(self, states: np.ndarray, tau: int, bad_steps: Optional[np.ndarray] = None):
+        """``bad_steps [N, T - 1]`` bool marks steps t -> t + 1 that no window may contain (e.g. an
+        implied command beyond the policy's saturation: no saturated policy can follow it)."""
         self.states = torch.from_numpy(np.ascontiguousarray(states, dtype=np.float32))
         self.tau = int(tau)
+        N, T = self.states.shape[:2]
+        bad = np.zeros((N, T - 1), bool) if bad_steps is None else np.asarray(bad_steps, bool)
+        if bad.shape != (N, T - 1):
+            raise ValueError(f"bad_steps must be [{N}, {T - 1}], got {bad.shape}")
+        # bad_before[s, t] = number of bad steps before step t: a window [t0, t0 + H) is clean
+        # when bad_before[t0 + H] == bad_before[t0]
+        self._bad_before = np.concatenate([np.zeros((N, 1), np.int64), np.cumsum(bad, axis=1)], axis=1)
+        self._clean: Dict[int, Tensor] = {}
+
+    def clean_starts(self, H: int) -> Tensor:
+        """``[K, 2]`` every (trajectory, t0) whose window of H steps holds no bad step."""
+        N, T = self.states.shape[:2]
+        H = min(H, T - 1)
+        if H not in self._clean:
+            ok = self._bad_before[:, H:] == self._bad_before[:, : T - H]           # [N, T - H]
+            self._clean[H] = torch.from_numpy(np.argwhere(ok))
+        return self._clean[H]
 
     def __len__(self) -> int:
         """Number of (trajectory, frame) start states, the unit of ``windows_per_epoch``."""
@@ -47,12 +66,11 @@ class Windows:
         return N * (T - 1)
 
     def starts(self, count: int, H: int, g: Optional[torch.Generator]) -> Tensor:
-        """``[count, 2]`` (trajectory, t0) pairs, uniform over every window that fits."""
-        N, T = self.states.shape[:2]
-        H = min(H, T - 1)
-        traj = torch.randint(0, N, (count,), generator=g)
-        t0 = torch.randint(0, T - H, (count,), generator=g)
-        return torch.stack([traj, t0], dim=1)
+        """``[count, 2]`` (trajectory, t0) pairs, uniform over every clean window that fits."""
+        clean = self.clean_starts(H)
+        if len(clean) == 0:
+            raise ValueError(f"no window of {H} steps without a bad step in the training data")
+        return clean[torch.randint(0, len(clean), (count,), generator=g)]
 
     def fixed_starts(self, count: int, H: int) -> Tensor:
         """Deterministic, evenly spread starts (validation)."""
@@ -197,7 +215,14 @@ class MultiStepObjective:
     def __init__(self, cfg: Dict[str, Any], spec: Scenario, dt: float, train_states: np.ndarray):
         self.cfg, self.spec, self.dt = cfg, spec, dt
         self.mc = cfg["multistep"]
-        self.windows = Windows(train_states, cfg["policy"]["tau"])
+        bad = None
+        if cfg["data"]["drop_saturated"]:
+            # as the one-step samples: steps whose implied command exceeds the saturation (close
+            # pairs at t = 0) cannot be followed by any saturated policy; no window holds one
+            v = spec.velocity if spec.command == "acceleration" else spec.position
+            implied = np.abs(np.diff(train_states[..., v], axis=1)) / dt                   # [N, T-1, n, m]
+            bad = implied.max(axis=(2, 3)) > cfg["policy"]["command_limit"]
+        self.windows = Windows(train_states, cfg["policy"]["tau"], bad)
         self.H = self.mc["horizons"][0]
 
     def batches(self, epoch: int, g: torch.Generator) -> List[Tensor]:
