@@ -41,7 +41,10 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
     "training": {"solver": "zoh", "ode_method": "rk4", "epochs": 60, "batch_size": 4096, "lr": 3e-3,
                  "lr_schedule": "cosine", "lr_min": 1e-4, "weight_decay": 0.0, "loss_units": "command",
                  "heading_weight": 1.0, "grad_clip": 10.0, "diverge_factor": 1000.0, "max_param": 1.0e5, "threads": 1,
-                 "max_minutes": None},
+                 "max_minutes": None, "objective": "one_step"},
+    # the multi_step objective (training/multistep.py): curriculum of horizons, from a one-step model
+    "multistep": {"init": None, "horizons": [10, 50, 200], "epochs": [2, 2, 2], "windows_per_epoch": 256,
+                  "batch_windows": 16, "units": "command", "checkpoint": 0},
     "selection": {"every": 5, "trajectories": 4, "steps": None},
     "augment": {"rotate": False, "velocity_boost": 0.0},
 }
@@ -50,6 +53,7 @@ SOLVERS = ("zoh", "rk4", "adjoint")
 NOISE_MODES = ("inputs", "observations", "none")
 SCHEDULES = ("cosine", "step", "none")
 LOSS_UNITS = ("command", "state")
+OBJECTIVES = ("one_step", "multi_step")
 POLICY_FIELDS = {f.name for f in fields(PolicyConfig)} - {"scenario", "extra"}
 
 
@@ -152,7 +156,32 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
     _check(isinstance(s["every"], int) and s["every"] >= 0, "selection.every", s["every"], "must be an integer >= 0 (0 = off)")
     _check(pos_int(s["trajectories"]), "selection.trajectories", s["trajectories"], "must be an integer >= 1")
     _check(s["steps"] is None or pos_int(s["steps"]), "selection.steps", s["steps"], "must be null or an integer >= 1")
+    _check_multistep(cfg, raw, pos_int)
     return cfg
+
+
+def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
+    t, m = cfg["training"], cfg["multistep"]
+    _check(t["objective"] in OBJECTIVES, "training.objective", t["objective"], f"must be one of {', '.join(OBJECTIVES)}")
+    _check(m["init"] is None or isinstance(m["init"], str), "multistep.init", m["init"],
+           "must be null or the path of a policy file or run directory")
+    for key in ("horizons", "epochs"):
+        _check(isinstance(m[key], list) and len(m[key]) >= 1 and all(pos_int(v) for v in m[key]),
+               f"multistep.{key}", m[key], "must be a non-empty list of integers >= 1")
+    _check(len(m["horizons"]) == len(m["epochs"]), "multistep.epochs", m["epochs"],
+           f"needs one entry per horizon ({len(m['horizons'])})")
+    for key in ("windows_per_epoch", "batch_windows"):
+        _check(pos_int(m[key]), f"multistep.{key}", m[key], "must be an integer >= 1")
+    _check(m["units"] in LOSS_UNITS, "multistep.units", m["units"], f"must be one of {', '.join(LOSS_UNITS)}")
+    _check(isinstance(m["checkpoint"], int) and m["checkpoint"] >= 0, "multistep.checkpoint", m["checkpoint"],
+           "must be an integer >= 0 (0: no activation checkpointing)")
+    if t["objective"] == "multi_step":
+        # the curriculum fixes the epoch count; a different explicit training.epochs is a contradiction
+        total = sum(m["epochs"])
+        given = (raw.get("training") or {}).get("epochs")
+        _check(given is None or given == total, "training.epochs", given,
+               f"the multi_step curriculum (multistep.epochs) trains {total} epochs")
+        t["epochs"] = total
 
 
 def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:

@@ -1,8 +1,13 @@
-"""Train a KNODE swarm policy from observed trajectories (one-step-ahead loss).
+"""Train a KNODE swarm policy from observed trajectories (one-step-ahead or trajectory loss).
 
     python -m training.train --config config/train_flock2d.yaml --data data/flock2d.npz --out runs/flock2d
     python -m training.train ... --resume          # continue an interrupted run from its checkpoint
     python -m training.train ... --set training.epochs=10 --set training.solver=adjoint
+    python -m training.train --config config/train_flock2d_multistep.yaml --data data/flock2d.npz --out runs/ms
+
+``training.objective``: ``one_step`` (default; one zero-order-hold step from every observed
+state) or ``multi_step`` (rollouts over a curriculum of horizons, training/multistep.py). The
+validation loss in metrics.jsonl is the one-step loss for both, so runs compare.
 
 The run directory receives ``config.yaml`` (the normalised config), ``metrics.jsonl`` (one
 line per epoch), ``checkpoint.pt`` (after every good epoch), ``policy.pt`` (the exported
@@ -139,6 +144,15 @@ class Trainer:
         self.scales = loss_scales(self.spec, self.dt, cfg["training"]["loss_units"], cfg["training"]["heading_weight"])
         torch.manual_seed(cfg["seed"])
         self.policy = build_policy(cfg)
+        self.multi = None
+        if cfg["training"]["objective"] == "multi_step":
+            from .multistep import MultiStepObjective, load_init_state
+            self.multi = MultiStepObjective(cfg, self.spec, self.dt, self.split["train"])
+            if cfg["multistep"]["init"] is not None:
+                try:
+                    self.policy.load_state_dict(load_init_state(cfg["multistep"]["init"]))
+                except (OSError, RuntimeError, ValueError) as exc:
+                    raise ConfigError(f"config field 'multistep.init' = {cfg['multistep']['init']!r}: {exc}") from None
         tc = cfg["training"]
         self.opt = torch.optim.Adam(self.policy.parameters(), lr=tc["lr"], weight_decay=tc["weight_decay"])
         self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, _lr_lambda(cfg))
@@ -202,6 +216,8 @@ class Trainer:
 
     # -- one epoch
     def _batches(self, g: torch.Generator) -> List[torch.Tensor]:
+        if self.multi is not None:
+            return self.multi.batches(self.epoch + 1, g)
         M = len(self.train)
         bs = self.cfg["training"]["batch_size"]
         bs = M if bs == "full" else min(bs, M)
@@ -209,6 +225,8 @@ class Trainer:
         return list(torch.split(perm, bs))
 
     def _loss(self, s: Samples, idx: Optional[torch.Tensor], g: Optional[torch.Generator]) -> torch.Tensor:
+        if self.multi is not None and s is self.train:
+            return self.multi.loss(self.policy, idx, g)
         Y, mask, target, own = ((s.Y, s.mask, s.target, s.clean_own) if idx is None else
                                 (s.Y[idx], s.mask[idx], s.target[idx], s.clean_own[idx]))
         ac = self.cfg["augment"]

@@ -20,7 +20,8 @@ from typing import Tuple
 
 import numpy as np
 
-__all__ = ["neighbour_matrix", "neighbour_matrix_single", "neighbour_matrices", "delayed_index"]
+__all__ = ["neighbour_matrix", "neighbour_matrix_single", "neighbour_matrices", "neighbour_index",
+           "neighbour_matrix_torch", "delayed_index"]
 
 
 def _distances(query: np.ndarray, others: np.ndarray) -> np.ndarray:
@@ -73,18 +74,57 @@ def neighbour_matrix(z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int
     Returns:
         ``Y [..., n, k, d]`` (dtype of the inputs) and ``mask [..., n, k]`` bool.
     """
-    if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
     z_now = np.asarray(z_now)
     z_delayed = np.asarray(z_delayed)
     if z_now.shape != z_delayed.shape:
         raise ValueError(f"z_now {z_now.shape} and z_delayed {z_delayed.shape} differ in shape")
-    pos = z_delayed[..., :position_dim]
+    index, valid = neighbour_index(z_delayed, position_dim, d_cr, k)
+    return _assemble(z_now, z_delayed, index, valid)
+
+
+def neighbour_index(z_delayed: np.ndarray, position_dim: int, d_cr: float,
+                    k: int) -> Tuple[np.ndarray, np.ndarray]:
+    """Who is in whose neighbour matrix: the ranking step of :func:`neighbour_matrix` alone.
+
+    Args:
+        z_delayed: ``[..., n, d]`` states at step t - tau.
+
+    Returns:
+        ``index [..., n, k-1]`` int64 (the robots in rows 1..k-1, closest first; 0 where
+        invalid) and ``valid [..., n, k-1]`` bool.
+    """
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    pos = np.asarray(z_delayed)[..., :position_dim]
     dist = _distances(pos, pos)
     n = dist.shape[-1]
     dist[..., np.arange(n), np.arange(n)] = np.inf  # a robot is not its own neighbour
-    index, valid = _rank(dist, d_cr, k)
-    return _assemble(z_now, z_delayed, index, valid)
+    return _rank(dist, d_cr, k)
+
+
+def neighbour_matrix_torch(z_now, z_delayed, position_dim: int, d_cr: float, k: int):
+    """:func:`neighbour_matrix` for torch tensors ``[..., n, d]``, differentiable in the states.
+
+    The ranking (who is a neighbour, in which row) is piecewise constant in the states, so it
+    is computed once by :func:`neighbour_index` on detached values; the rows are gathered from
+    the tensors, so gradients flow through every row's content (training through rollouts).
+
+    Returns:
+        ``Y [..., n, k, d]`` (dtype of the inputs) and ``mask [..., n, k]`` of the same dtype.
+    """
+    import torch
+
+    if z_now.shape != z_delayed.shape:
+        raise ValueError(f"z_now {tuple(z_now.shape)} and z_delayed {tuple(z_delayed.shape)} differ in shape")
+    index, valid = neighbour_index(z_delayed.detach().cpu().numpy(), position_dim, d_cr, k)
+    index_t = torch.from_numpy(index).to(z_now.device)
+    valid_t = torch.from_numpy(valid).to(device=z_now.device, dtype=z_now.dtype)
+    lead, (n, d) = z_delayed.shape[:-2], z_delayed.shape[-2:]
+    src = z_delayed.unsqueeze(-3).expand(lead + (n, n, d))                       # [..., n, n, d]
+    rows = torch.gather(src, -2, index_t.unsqueeze(-1).expand(index.shape + (d,))) * valid_t.unsqueeze(-1)
+    Y = torch.cat([z_now.unsqueeze(-2), rows], dim=-2)
+    mask = torch.cat([torch.ones(valid_t.shape[:-1] + (1,), dtype=z_now.dtype, device=z_now.device), valid_t], -1)
+    return Y, mask
 
 
 def neighbour_matrix_single(i: int, z_now_i: np.ndarray, z_delayed: np.ndarray,

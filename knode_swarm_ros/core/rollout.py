@@ -15,11 +15,11 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from .network import neighbour_matrix
+from .network import neighbour_matrix, neighbour_matrix_torch
 from .saturation import saturate
 from .scenarios import Scenario, get_scenario
 
-__all__ = ["zoh_step", "zoh_step_torch", "rollout", "policy_commands", "PolicyFn"]
+__all__ = ["zoh_step", "zoh_step_torch", "rollout", "rollout_torch", "policy_commands", "PolicyFn"]
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -114,3 +114,38 @@ def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: f
         if progress is not None:
             progress(t)
     return out[0] if single else out
+
+
+def rollout_torch(policy, z0, steps: int, scenario: str, d_cr: float, k: int, tau: int, dt: float, history=None):
+    """:func:`rollout` for torch, differentiable: training through the deployment semantics.
+
+    Every step rebuilds each robot's neighbour matrix from the rolled-out states themselves
+    (delayed by ``tau``, as a robot would hear them), evaluates ``policy`` once on all rows and
+    integrates the zero-order hold with :func:`zoh_step_torch`.
+
+    Args:
+        policy: ``(Y [B, k, d], mask [B, k]) -> [B, m]`` torch callable (a KNODEPolicy).
+        z0: ``[S, n, d]`` initial states (one window per swarm).
+        history: optional ``[S, tau, n, d]`` states of the ``tau`` frames before ``z0`` (oldest
+            first): what the robots heard before the window. Without it, the earliest frame
+            (``z0``) stands in, as in :func:`rollout` from frame 0.
+
+    Returns:
+        ``[S, steps + 1, n, d]``; frame 0 is ``z0``.
+    """
+    import torch
+
+    spec = get_scenario(scenario)
+    if z0.dim() != 3 or z0.shape[-1] != spec.state_dim:
+        raise ValueError(f"z0 must be [S, n, {spec.state_dim}], got {tuple(z0.shape)}")
+    if history is not None and (history.dim() != 4 or history.shape[1] != tau):
+        raise ValueError(f"history must be [S, tau={tau}, n, d], got {tuple(history.shape)}")
+    frames = [z0]
+    for t in range(steps):
+        j = t - tau
+        z_delayed = frames[j] if j >= 0 else (history[:, j] if history is not None else frames[0])
+        Y, mask = neighbour_matrix_torch(frames[t], z_delayed, spec.position_dim, d_cr, k)
+        S, n = Y.shape[:2]
+        command = policy(Y.reshape(S * n, k, -1), mask.reshape(S * n, k)).reshape(S, n, -1)
+        frames.append(zoh_step_torch(frames[t], command, spec, dt))
+    return torch.stack(frames, dim=1)

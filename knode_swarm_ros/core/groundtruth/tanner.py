@@ -25,7 +25,7 @@ from typing import Callable, Dict, Optional
 
 import numpy as np
 
-__all__ = ["VARIANTS", "DT", "pair_potential", "tanner_acceleration", "tanner_energy", "rk4",
+__all__ = ["VARIANTS", "DT", "pair_potential", "tanner_acceleration", "local_tanner_acceleration", "tanner_energy", "rk4",
            "rk4_step", "initial_states", "variant_clip", "TannerSwarm"]
 
 #: Ground-truth integration step (seconds), as in the paper.
@@ -101,6 +101,30 @@ def tanner_acceleration(states: np.ndarray, clip: Optional[float] = None) -> np.
     if clip is not None:
         np.clip(acc, -clip, clip, out=acc)
     return acc
+
+
+def local_tanner_acceleration(Y: np.ndarray, mask: np.ndarray, clip: Optional[float] = None) -> np.ndarray:
+    """The Tanner law restricted to what a robot hears: the hand-written decentralised baseline.
+
+    Args:
+        Y: ``[B, k, 4]`` neighbour matrices (row 0 the robot, rows 1.. its delayed neighbours).
+        mask: ``[B, k]`` real rows.
+        clip: per-axis saturation (the policies' ``command_limit``), or None.
+
+    Returns:
+        ``[B, 2]``: u_i = -sum_j (v_i - v_j) - sum_j (2/r^2 - 2/r^4) r_ij over the masked rows
+        j >= 1 (:func:`tanner_acceleration` with the sums cut to the neighbour matrix). A
+        neighbour at the robot's own position adds no potential term (its direction is undefined).
+    """
+    Y = np.asarray(Y, dtype=np.float64)
+    m = np.asarray(mask, dtype=bool)[:, 1:, None]
+    dp = Y[:, :1, :2] - Y[:, 1:, :2]                                  # r_ij = r_i - r_j  [B, k-1, 2]
+    r2 = np.sum(dp * dp, axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(r2 > 0, 1.0 / r2, 0.0)
+    c = inv - inv * inv
+    acc = -np.sum(np.where(m, Y[:, :1, 2:] - Y[:, 1:, 2:], 0.0), axis=1) - 2.0 * np.sum(np.where(m, c * dp, 0.0), axis=1)
+    return acc if clip is None else np.clip(acc, -clip, clip)
 
 
 def tanner_energy(states: np.ndarray) -> np.ndarray:
