@@ -391,7 +391,10 @@ def test_a_recording_cut_short_is_read_up_to_where_it_ends(tmp_path, capsys):
         for k, s in enumerate(t):
             for i in range(2):
                 ns = round(s * SEC)
-                bag.write(f"/robot_{i}/odom", ODOMETRY, odometry_message("flock2d", states[k, i], ns, i), ns)
+                # child_frame_id as before REP 105 naming: keeps the byte layout, so the cut below lands
+                # inside a chunk (a cut inside a chunk *header* raises struct.error in bagio: reported)
+                bag.write(f"/robot_{i}/odom", ODOMETRY,
+                          odometry_message("flock2d", states[k, i], ns, i, child_frame_id=f"robot_{i}"), ns)
     (path / "metadata.yaml").unlink()
     last = path / "cut_1.mcap"
     with open(last, "r+b") as fh:

@@ -244,3 +244,57 @@ def test_recorder_writes_what_it_heard_and_publishes_metrics(ros, tmp_path):
     data = load_trajectories(out)
     assert np.array_equal(data.states[0], frames) and data.dt == pytest.approx(0.01)
     assert data.meta['interrupted'] is False and data.meta['source']['mode'] == 'lockstep'
+
+
+def _foreign_odom(robot, stamp, z, yaw, twist_frame):
+    """Odometry as a foreign driver publishes it: its own yaw in the pose, its own child frame
+    name, angular velocity set, the twist in the body frame (REP 105) or, deviating, the world's."""
+    msg = Odometry()
+    msg.header.stamp = time_msg(stamp)
+    msg.header.frame_id = 'world'
+    msg.child_frame_id = f'robot_{robot}/base_footprint'
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(z[0]), float(z[1])
+    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = float(np.sin(yaw / 2)), float(np.cos(yaw / 2))
+    c, s = np.cos(yaw), np.sin(yaw)
+    vx, vy = (c * z[2] + s * z[3], -s * z[2] + c * z[3]) if twist_frame == 'body' else (z[2], z[3])
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y = float(vx), float(vy)
+    msg.twist.twist.angular.z = 0.4
+    return msg
+
+
+@pytest.mark.parametrize('twist_frame', ['body', 'world'])
+def test_foreign_odometry_in_either_twist_frame_gives_the_same_command(ros, flock_policy, twist_frame):
+    """Robots facing every quadrant, publishing REP 105 body twists (agent default) or world-frame
+    twists (twist_frame:=world): the agent's command is the one the core computes from the world
+    states, the same in both cases."""
+    from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+    params = dict(id=1, robots=4, policy=str(flock_policy), mode='lockstep', use_sim_time=True)
+    if twist_frame == 'world':
+        params['twist_frame'] = 'world'
+    _agent(ros, **params)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(4)}
+    commands = []
+    io.create_subscription(AccelStamped, 'robot_1/cmd_accel', commands.append, qos.COMMAND)
+    Z = np.array([[0.0, 0.0, 1.0, 0.5], [0.8, 0.3, -0.7, 1.0], [1.5, -0.4, -0.5, -0.9], [2.0, 1.0, 0.6, -1.2]])
+    yaws = [0.4, 2.2, -2.6, -1.1]  # one robot per quadrant, none facing its velocity
+    stamp = 3 * 10_000_000
+
+    def publish():
+        for r in (3, 2, 0, 1):
+            pubs[r].publish(_foreign_odom(r, stamp, Z[r], yaws[r], twist_frame))
+
+    assert ros.spin_until(lambda: commands, each=publish), 'no command from the agent'
+    ns, u = msg_to_command(commands[0], 'flock2d')
+    policy = load_policy(flock_policy)
+    Y, mask = neighbour_matrix_single(1, Z[1], Z, 2, policy.d_cr, policy.k)
+    assert mask.sum() == 4
+    expected = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
+    assert ns == stamp and np.allclose(u, expected, rtol=0, atol=1e-6)
+    # Read with the wrong frame, the velocities (and so the command) would differ: the check can fail.
+    Z_wrong = Z.copy()
+    for r in range(4):
+        c, s = np.cos(yaws[r]), np.sin(yaws[r])
+        Z_wrong[r, 2:] = (c * Z[r, 2] + s * Z[r, 3], -s * Z[r, 2] + c * Z[r, 3])
+    Yw, maskw = neighbour_matrix_single(1, Z_wrong[1], Z_wrong, 2, policy.d_cr, policy.k)
+    assert not np.allclose(np.clip(policy(Yw[None], maskw[None])[0], -10, 10), expected, rtol=0, atol=1e-6)

@@ -26,8 +26,8 @@ from std_msgs.msg import String
 from . import qos
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
 from .common import (MODES, ConfigError, agent_status_topic,
-                     command_topic, odom_topic, robot_frame, robot_id_list, status_json)
-from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
+                     command_topic, is_robot_frame, odom_topic, robot_id_list, status_json)
+from .conversions import TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_from_cdr
 from .executor import run_node
 from .params import declare, declare_int_array, node_name_from_args
 
@@ -117,6 +117,9 @@ class AgentNode(Node):
         threads = declare(self, 'torch_threads', 1, 'torch intra-op threads', int_range=(1, 256))
         status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
                                 float_range=(0.01, 3600.0))
+        self.twist_frame = declare(self, 'twist_frame', 'body', 'frame of the twist in the robots\' Odometry: body '
+                                   '(REP 105 child frame, rotated into the world by the pose orientation) or world '
+                                   '(a driver that deviates from REP 105)', choices=TWIST_FRAMES)
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
 
         ids = robot_id_list(robots, robot_ids)
@@ -163,12 +166,12 @@ class AgentNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.spec)
+            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
         except CdrError as exc:
             self.logic.malformed()
             self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
             return
-        robot = topic_robot if frame in ('', robot_frame(topic_robot)) else None
+        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
         now = self.get_clock().now().nanoseconds
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:

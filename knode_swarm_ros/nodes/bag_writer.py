@@ -1,21 +1,14 @@
 """Write swarm states as a rosbag2-style MCAP bag, without ROS (``mcap`` + ``mcap-ros2-support``).
 
 The bag holds what a real ``ros2 bag record`` of the swarm would hold: one topic per robot,
-``/robot_<id>/odom``, nav_msgs/msg/Odometry, ``header.stamp`` = the state's time, ``frame_id``
-``world``, ``child_frame_id`` ``robot_<id>`` (DESIGN.md, "ROS 2 interfaces"). The state goes into
-the message as the conversion module of the nodes maps it:
-
-* flock2d ``[px, py, vx, vy]``: ``pose.pose.position.x/y`` = px/py (z = 0), ``twist.twist.linear.x/y``
-  = vx/vy (world frame), orientation = yaw of the velocity (identity for v = 0; RViz only);
-* boids3d ``[px, py, pz, hx, hy, hz]``: ``pose.pose.position`` = p, ``pose.pose.orientation`` = a
-  quaternion rotating +x onto h (:func:`heading_to_quaternion`), twist.linear = the optional
-  velocities, else zero.
-
-This is the mapping of :mod:`knode_swarm_ros.nodes.conversions` (the one place that defines
-it). That module needs the ROS message packages, so the message layout is written here as
-dicts for mcap-ros2-support, with the orientation maths shared from the ROS-free
-:mod:`knode_swarm_ros.nodes.orientation`; tests/test_import_bag.py checks that both produce
-the same messages.
+``/robot_<id>/odom``, nav_msgs/msg/Odometry per REP 105, ``header.stamp`` = the state's time,
+``frame_id`` ``world``, ``child_frame_id`` ``robot_<id>/base_link``, pose in the world frame and
+twist in the child frame (DESIGN.md, "ROS 2 interfaces"). The state goes into the message by
+the ROS-free :func:`knode_swarm_ros.nodes.odom_mapping.state_to_fields`, the same function the
+nodes' conversion module calls (the one mapping: flock2d p, identity orientation and v;
+boids3d p, the heading quaternion and the optional velocity in the child frame). Only the
+message layout is written here, as dicts for mcap-ros2-support; tests/test_import_bag.py checks
+that both produce the same messages.
 
 ``mcap`` is not a robot runtime dependency: it is imported only when a bag is written.
 ``training.import_bag`` reads these bags (and real ones) back into trajectory files.
@@ -48,6 +41,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from .common import WORLD_FRAME, robot_frame
+from .odom_mapping import state_to_fields
 from .orientation import heading_to_quaternion, yaw_quaternion
 
 __all__ = ["write_odometry_bag", "BagWriter", "message_definition", "heading_to_quaternion",
@@ -210,22 +204,14 @@ def odometry_message(scenario: str, z: np.ndarray, stamp_ns: int, robot_id: int,
     """One nav_msgs/Odometry as a dict (mcap-ros2-support encodes dicts) for state ``z[d]``,
     field for field what :func:`knode_swarm_ros.nodes.conversions.state_to_odom` publishes.
 
-    ``velocity`` (boids3d only, optional) fills twist.linear, for information; ``child_frame_id``
-    defaults to ``robot_<id>``.
+    ``velocity`` (boids3d only, optional, world frame) fills twist.linear (in the child frame),
+    for information; ``child_frame_id`` defaults to ``robot_<id>/base_link``.
     """
-    z = np.asarray(z, dtype=np.float64)
-    linear = {"x": 0.0, "y": 0.0, "z": 0.0}
-    if scenario == "flock2d":
-        position = {"x": float(z[0]), "y": float(z[1]), "z": 0.0}
-        qx, qy, qz, qw = yaw_quaternion(float(z[2]), float(z[3]))
-        linear = {"x": float(z[2]), "y": float(z[3]), "z": 0.0}
-    elif scenario == "boids3d":
-        position = {"x": float(z[0]), "y": float(z[1]), "z": float(z[2])}
-        qx, qy, qz, qw = (float(v) for v in heading_to_quaternion(z[3:6]))
-        if velocity is not None:
-            linear = dict(zip("xyz", (float(v) for v in velocity)))
-    else:
+    if scenario not in ("flock2d", "boids3d"):
         raise BagWriteError(f"unknown scenario {scenario!r}; known: boids3d, flock2d")
+    (px, py, pz), (qx, qy, qz, qw), lin = state_to_fields(z, scenario, velocity)
+    position = {"x": px, "y": py, "z": pz}
+    linear = dict(zip("xyz", lin))
     zero36 = [0.0] * 36
     return {
         "header": {"stamp": ns_to_stamp(stamp_ns), "frame_id": frame_id},
@@ -444,7 +430,7 @@ def write_odometry_bag(path: PathLike, states: np.ndarray, dt: float, scenario: 
                        stamps: Optional[np.ndarray] = None, topic_fmt: str = "/robot_{id}/odom",
                        ids: Optional[Sequence[int]] = None, mask: Optional[np.ndarray] = None,
                        velocities: Optional[np.ndarray] = None, frame_id: str = WORLD_FRAME,
-                       child_frame_fmt: str = "robot_{id}", split_messages: Optional[int] = None,
+                       child_frame_fmt: str = "robot_{id}/base_link", split_messages: Optional[int] = None,
                        overwrite: bool = False) -> Dict[str, Any]:
     """Write one swarm run ``states[T, n, d]`` as nav_msgs/Odometry messages, one topic per robot.
 
