@@ -298,3 +298,29 @@ def test_foreign_odometry_in_either_twist_frame_gives_the_same_command(ros, floc
         Z_wrong[r, 2:] = (c * Z[r, 2] + s * Z[r, 3], -s * Z[r, 2] + c * Z[r, 3])
     Yw, maskw = neighbour_matrix_single(1, Z_wrong[1], Z_wrong, 2, policy.d_cr, policy.k)
     assert not np.allclose(np.clip(policy(Yw[None], maskw[None])[0], -10, 10), expected, rtol=0, atol=1e-6)
+
+
+def test_agent_link_model_drops_counts_and_respects_radio_range(ros, flock_policy):
+    """link_loss and link_range on a realtime agent: lost and out-of-range neighbour states never
+    reach the logic, everything is counted in the status, the own state is never withheld."""
+    agent = _agent(ros, id=0, robots=3, policy=str(flock_policy), mode='realtime', link_loss=0.5, link_range=5.0,
+                   link_seed=3, state_timeout=60.0)  # a loaded machine may deliver late: nothing is too old
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(3)}
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, 1.0], [50.0, 0.0, 0.0, 0.0]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in range(3):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    link = agent.link.model.counters
+    assert ros.spin_until(lambda: link['offered'] >= 60, each=publish, timeout=60)
+    assert link['offered'] == link['out_of_range'] + link['lost'] + link['delivered']
+    assert link['out_of_range'] >= link['offered'] // 2 - 2     # every state of robot 2 (robot 0 first heard)
+    assert link['lost'] > 0 and link['delivered'] > 0
+    assert 2 not in agent.logic.newest_ns and 1 in agent.logic.newest_ns and 0 in agent.logic.newest_ns
+    status = agent._status()
+    assert status['link']['lost'] == link['lost']
+    with pytest.raises(ConfigError, match='link'):
+        _agent(ros, id=1, robots=3, policy=str(flock_policy), mode='lockstep', link_loss=0.1)

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from . import qos
+from .agent_link import AgentLink
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
 from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, is_robot_frame, odom_topic, robot_id_list, status_json)
@@ -120,6 +121,7 @@ class AgentNode(Node):
         self.twist_frame = declare(self, 'twist_frame', 'body', 'frame of the twist in the robots\' Odometry: body '
                                    '(REP 105 child frame, rotated into the world by the pose orientation) or world '
                                    '(a driver that deviates from REP 105)', choices=TWIST_FRAMES)
+        self.link = AgentLink(self, robot_id, mode)  # link model (loss, delay, range): off by default
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
 
         ids = robot_id_list(robots, robot_ids)
@@ -173,6 +175,8 @@ class AgentNode(Node):
             return
         robot = topic_robot if is_robot_frame(frame, topic_robot) else None
         now = self.get_clock().now().nanoseconds
+        if not self._through_link(robot, stamp, z, now):
+            return
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
             detail = (f"child_frame_id {frame!r} on {odom_topic(topic_robot)}" if outcome == 'unknown_id'
@@ -195,8 +199,25 @@ class AgentNode(Node):
         self._lockstep_poll()
         self._flush_drops()
 
+    def _through_link(self, robot, stamp: int, z, now: int) -> bool:
+        """True: file the state now; False: the link model took it (lost, out of range, or
+        filed when its delay has passed, by :meth:`_release_link`)."""
+        if not self.link.enabled or robot is None or robot == self.logic.me:
+            return True
+        latest = self.logic.buffer.latest(self.logic.me)
+        self.link.offer(now * 1e-9, robot, stamp, z, None if latest is None else latest[1], self.spec.position_dim)
+        self._release_link(now)
+        return False
+
+    def _release_link(self, now: int) -> None:
+        # Before the clock runs (0: the simulator waits for every agent to hear every robot) a delay
+        # cannot pass: deliver what the link let through, or the swarm would never start.
+        for robot, stamp, z in self.link.due(now * 1e-9 if now > 0 else float('inf')):
+            self.logic.receive(robot, stamp, z, now, time.monotonic())
+
     def _on_tick(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._release_link(now)
         cmd = self.logic.tick(now)
         if cmd is None:
             self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
@@ -215,7 +236,10 @@ class AgentNode(Node):
         now = time.monotonic()
         if now - self._last_log.get(key, -1e9) >= _LOG_EVERY_S:
             self._last_log[key] = now
-            (self.get_logger().warning if warn else self.get_logger().info)(text)
+            if warn:  # two call sites: rclpy refuses one call site logging at two severities
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
 
     def _note_drop(self, reason: str, detail: str) -> None:
         entry = self._drops[reason]
@@ -240,7 +264,13 @@ class AgentNode(Node):
             self.get_logger().warning(text)
 
     def _publish_status(self) -> None:
-        self.status_pub.publish(String(data=status_json(**self.logic.status())))
+        self.status_pub.publish(String(data=status_json(**self._status())))
+
+    def _status(self) -> dict:
+        status = self.logic.status()
+        if self.link.enabled:
+            status['link'] = self.link.status()
+        return status
 
     def write_report(self) -> None:
         """Write the counters to the ``report`` file (if set)."""
@@ -248,7 +278,7 @@ class AgentNode(Node):
             return
         tmp = f'{self.report_path}.tmp{os.getpid()}'
         with open(tmp, 'w') as fh:
-            json.dump(self.logic.status(), fh)
+            json.dump(self._status(), fh)
         os.replace(tmp, self.report_path)
 
 

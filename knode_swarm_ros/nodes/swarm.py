@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from .agent_link import add_link_arguments, link_parameters
 from .common import (EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, MODES,
                      ConfigError)
 
@@ -100,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                    'temporary folder, removed after a successful run unless --keep-logs)')
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
+    add_link_arguments(p)
     return p
 
 
@@ -136,6 +138,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
             raise ConfigError(f"--{name.replace('_', '-')} must be > 0, got {value}")
     if args.timeout < 0:
         raise ConfigError(f'--timeout must be >= 0, got {args.timeout}')
+    link_parameters(args, args.mode)  # checks the --link-* flags
     record = Path(args.record).expanduser().resolve()
     if record.suffix != '.npz':
         raise ConfigError(f'--record {args.record}: the trajectory file must end with .npz')
@@ -232,7 +235,7 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
     if not gt:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
                  'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
-                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True}
+                 'parity_batch': not a.no_parity_batch, 'use_sim_time': True, **link_parameters(a, plan.mode)}
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
         for i in range(plan.robots):
             out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
