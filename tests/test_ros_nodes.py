@@ -324,3 +324,52 @@ def test_agent_link_model_drops_counts_and_respects_radio_range(ros, flock_polic
     assert status['link']['lost'] == link['lost']
     with pytest.raises(ConfigError, match='link'):
         _agent(ros, id=1, robots=3, policy=str(flock_policy), mode='lockstep', link_loss=0.1)
+
+
+@pytest.mark.parametrize('stamped', [True, False])
+def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_policy, stamped):
+    """command_interface unicycle: the core's acceleration command, held over one control period,
+    becomes the velocity of the point 0.2 ahead of the axle, mapped to (linear.x, angular.z) at the
+    robot's heading from its REP 105 Odometry (body twist, angular.z)."""
+    from geometry_msgs.msg import Twist, TwistStamped
+    from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+    from knode_swarm_ros.core.unicycle import point_ahead
+    agent = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime', control_rate=20.0,
+                   state_timeout=60.0, command_interface='unicycle', unicycle_stamped=stamped,
+                   unicycle_lookahead=0.2, max_linear_speed=50.0, max_angular_speed=500.0)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
+    got = []
+    io.create_subscription(TwistStamped if stamped else Twist, 'robot_0/cmd_vel', got.append, qos.COMMAND)
+    yaw, speed, turn = 2.3, 0.5, 0.3
+    own_world_v = speed * np.array([np.cos(yaw), np.sin(yaw)])
+    Z = np.array([[0.0, 0.0, *own_world_v], [1.0, 0.5, 0.2, -0.1]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        own = state_to_odom(0, now, Z[0], 'flock2d')   # position; the orientation and body twist follow
+        own.pose.pose.orientation.z, own.pose.pose.orientation.w = float(np.sin(yaw / 2)), float(np.cos(yaw / 2))
+        own.twist.twist.linear.x, own.twist.twist.linear.y = speed, 0.0
+        own.twist.twist.angular.z = turn
+        pubs[1].publish(state_to_odom(1, now, Z[1], 'flock2d'))
+        pubs[0].publish(own)
+
+    assert ros.spin_until(lambda: len(got) >= 2 and agent.logic.ready, each=publish, timeout=60)
+    policy = load_policy(flock_policy)
+    Y, mask = neighbour_matrix_single(0, Z[0], Z, 2, policy.d_cr, policy.k)
+    u = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
+    _, point_v = point_ahead(0.0, 0.0, yaw, speed, turn, 0.2)
+    want = point_v + u / 20.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    v, w = c * want[0] + s * want[1], (-s * want[0] + c * want[1]) / 0.2
+    msg = got[-1]
+    twist = msg.twist if stamped else msg
+    assert twist.linear.x == pytest.approx(v, abs=1e-5) and twist.angular.z == pytest.approx(w, abs=1e-4)
+    assert twist.linear.y == 0.0 and twist.linear.z == 0.0
+    if stamped:
+        assert msg.header.frame_id == 'robot_0/base_link'
+    assert agent._status()['unicycle']['periods'] >= 2
+    with pytest.raises(ConfigError, match='realtime'):
+        _agent(ros, id=1, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle')
+    with pytest.raises(ConfigError, match='command_interface'):
+        _agent(ros, id=1, robots=2, policy=str(flock_policy), command_interface='twist')

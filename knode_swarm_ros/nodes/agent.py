@@ -26,9 +26,11 @@ from std_msgs.msg import String
 from . import qos
 from .agent_link import AgentLink
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
+from .agent_unicycle import AgentUnicycle
 from .common import (MODES, ConfigError, agent_status_topic,
                      command_topic, is_robot_frame, odom_topic, robot_id_list, status_json)
-from .conversions import TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_from_cdr
+from .conversions import (TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_fields_from_cdr,
+                          odom_from_cdr, time_msg)
 from .executor import run_node
 from .params import declare, declare_int_array, node_name_from_args
 
@@ -134,6 +136,7 @@ class AgentNode(Node):
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
+        self.unicycle = AgentUnicycle(self, robot_id, self.spec, mode, control_rate, qos.COMMAND)  # off by default
 
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -174,6 +177,8 @@ class AgentNode(Node):
             self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
             return
         robot = topic_robot if is_robot_frame(frame, topic_robot) else None
+        if self.unicycle.enabled and robot == self.logic.me:
+            self.unicycle.observe_own(*odom_fields_from_cdr(data)[2:])
         now = self.get_clock().now().nanoseconds
         if not self._through_link(robot, stamp, z, now):
             return
@@ -227,9 +232,15 @@ class AgentNode(Node):
                 self._throttled('stale', f'own state is stale ({(now - own) * 1e-9:.3f} s old, timeout '
                                 f'{self.logic.config.state_timeout:g} s): publishing a zero command (stop)',
                                 warn=True)
-            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self._publish_command(cmd)
         self._log_events()
         self._flush_drops()
+
+    def _publish_command(self, cmd) -> None:
+        if self.unicycle.enabled:  # differential drive: cmd_vel (linear.x, angular.z)
+            self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
+        else:
+            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
 
     # --- logging -------------------------------------------------------------------
     def _throttled(self, key: str, text: str, warn: bool = False) -> None:
@@ -270,6 +281,8 @@ class AgentNode(Node):
         status = self.logic.status()
         if self.link.enabled:
             status['link'] = self.link.status()
+        if getattr(self, 'unicycle', None) is not None and self.unicycle.enabled:
+            status['unicycle'] = self.unicycle.status()
         return status
 
     def write_report(self) -> None:

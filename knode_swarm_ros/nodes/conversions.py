@@ -48,7 +48,7 @@ from .odom_mapping import TWIST_FRAMES, fields_to_state, state_to_fields
 from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
-           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr',
+           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr', 'odom_fields_from_cdr',
            'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'msg_to_command']
 
 ScenarioLike = Union[str, Scenario]
@@ -151,9 +151,9 @@ def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Option
     return bytes(buf)
 
 
-def odom_from_cdr(data: bytes, scenario: ScenarioLike, twist_frame: str = 'body') -> Tuple[int, str, np.ndarray]:
-    """(stamp ns, child_frame_id, state ``z [d]``) of a serialized Odometry, its twist read in
-    ``twist_frame`` (as :func:`odom_to_state`).
+def odom_fields_from_cdr(data: bytes) -> Tuple[int, str, Tuple[float, ...], Tuple[float, ...], Tuple[float, ...]]:
+    """(stamp ns, child_frame_id, pose (x, y, z, qx, qy, qz, qw), twist.linear [3], twist.angular [3])
+    of a serialized Odometry, as it is on the wire (no frame change).
 
     Reads plain CDR (XCDR1) in either byte order, as rmw_fastrtps writes it.
 
@@ -179,13 +179,24 @@ def odom_from_cdr(data: bytes, scenario: ScenarioLike, twist_frame: str = 'body'
         pos += (-(pos - 4)) % 8
         pose = struct.unpack_from(e + '7d', data, pos)
         pos += 56 + 8 * 36
-        linear = struct.unpack_from(e + '3d', data, pos)
+        twist = struct.unpack_from(e + '6d', data, pos)
         if pos + 48 + 8 * 36 != len(data):
             raise CdrError(f'{len(data)} bytes, expected {pos + 48 + 8 * 36}')
     except struct.error as exc:
         raise CdrError(f'truncated Odometry ({len(data)} bytes): {exc}') from None
     ns = int(sec) * 1_000_000_000 + int(nanosec)
-    return ns, frames[1], fields_to_state(pose[:3], pose[3:7], linear, _spec(scenario), twist_frame)
+    return ns, frames[1], pose, twist[:3], twist[3:]
+
+
+def odom_from_cdr(data: bytes, scenario: ScenarioLike, twist_frame: str = 'body') -> Tuple[int, str, np.ndarray]:
+    """(stamp ns, child_frame_id, state ``z [d]``) of a serialized Odometry, its twist read in
+    ``twist_frame`` (as :func:`odom_to_state`).
+
+    Raises:
+        CdrError: not a serialized Odometry (see :func:`odom_fields_from_cdr`).
+    """
+    ns, child, pose, linear, _ = odom_fields_from_cdr(data)
+    return ns, child, fields_to_state(pose[:3], pose[3:7], linear, _spec(scenario), twist_frame)
 
 
 def command_msg_type(scenario: ScenarioLike):
