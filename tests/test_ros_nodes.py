@@ -373,3 +373,73 @@ def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_p
         _agent(ros, id=1, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle')
     with pytest.raises(ConfigError, match='command_interface'):
         _agent(ros, id=1, robots=2, policy=str(flock_policy), command_interface='twist')
+
+
+def _lifecycle(io, ros, node_name, transition=None):
+    """get_state, or change_state to ``transition`` (a lifecycle_msgs Transition id), through the services."""
+    from lifecycle_msgs.srv import ChangeState, GetState
+    if transition is None:
+        client = io.create_client(GetState, f'{node_name}/get_state')
+        request = GetState.Request()
+    else:
+        client = io.create_client(ChangeState, f'{node_name}/change_state')
+        request = ChangeState.Request()
+        request.transition.id = transition
+    assert ros.spin_until(lambda: client.service_is_ready(), timeout=30)
+    future = client.call_async(request)
+    assert ros.spin_until(lambda: future.done(), timeout=30)
+    io.destroy_client(client)
+    result = future.result()
+    return result.current_state.label if transition is None else result.success
+
+
+def test_managed_agent_through_the_lifecycle_services(ros, flock_policy):
+    """managed:=true: unconfigured until configured, quiet until activated, commands when active,
+    on deactivate brakes an acceleration robot to rest (one saturated stop per period) and then
+    publishes nothing; an unmanaged agent is active by itself."""
+    from lifecycle_msgs.msg import Transition
+    from knode_swarm_ros.nodes.agent import AgentNode
+    from rclpy.parameter import Parameter
+    params = dict(id=1, robots=2, policy=str(flock_policy), mode='realtime', control_rate=20.0,
+                  state_timeout=60.0, managed=True)
+    agent = ros.add(AgentNode('agent_1', context=ros.context,
+                              parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]))
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
+    commands = []
+    io.create_subscription(AccelStamped, 'robot_1/cmd_accel', commands.append, qos.COMMAND)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 3.0, -1.0]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in (0, 1):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    assert _lifecycle(io, ros, 'agent_1') == 'unconfigured'
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_CONFIGURE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'inactive'
+    assert ros.spin_until(lambda: agent.logic.ready, each=publish, timeout=30)
+    ros.spin_until(lambda: False, each=publish, timeout=1.0)        # ticks happen; nothing may come out
+    assert commands == [] and agent._status()['ready'] is False
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_ACTIVATE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'active'
+    assert ros.spin_until(lambda: len(commands) >= 3, each=publish, timeout=30)
+    assert agent._status()['ready'] is True
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_DEACTIVATE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'inactive'
+    n_active = len(commands)
+    # The robot still moves at (3, -1): brake commands -v/dt saturated at 10 -> (-10, 10).
+    assert ros.spin_until(lambda: len(commands) >= n_active + 2, each=publish, timeout=30)
+    _, u = msg_to_command(commands[-1], 'flock2d')
+    assert np.allclose(u, [-10.0, 10.0])
+    # Once the robot stands, the stop ends and the inactive agent goes quiet.
+    Z[1, 2:] = 0.0
+    assert ros.spin_until(lambda: not agent.braking, each=publish, timeout=30)
+    sent = agent.stops_sent
+    assert ros.spin_until(lambda: np.allclose(msg_to_command(commands[-1], 'flock2d')[1], 0.0), each=publish)
+    ticks = agent.logic.counters['commands']
+    assert ros.spin_until(lambda: agent.logic.counters['commands'] >= ticks + 5, each=publish)
+    assert agent.stops_sent == sent                               # ticks go on, nothing is published
+    # Unmanaged (the default): active at once, no lifecycle manager needed.
+    plain = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime')
+    assert plain.active and _lifecycle(io, ros, 'agent_0') == 'active'

@@ -81,3 +81,17 @@ def test_unicycle_step_is_exact_on_arcs():
         fine = unicycle_step(fine, 0.7, 1.1, 1e-4)
     assert np.allclose(unicycle_step(pose, 0.7, 1.1, 1.0), fine, atol=1e-9)
     assert np.allclose(unicycle_step(pose, 0.7, 0.0, 2.0), [1.0 + 1.4 * math.cos(0.3), 2.0 + 1.4 * math.sin(0.3), 0.3])
+
+
+def test_brake_command_stops_a_double_integrator_within_the_limit():
+    pytest.importorskip('rclpy.lifecycle', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+    from knode_swarm_ros.nodes.agent_lifecycle import brake_command
+    z = np.array([1.0, 2.0, 0.03, -0.5])
+    u = brake_command('acceleration', z, 0.01, 10.0)
+    assert np.allclose(u, [-3.0, 10.0])                               # -v/dt, saturated per axis
+    assert np.allclose(brake_command('acceleration', z, 0.01, None), [-3.0, 50.0])
+    assert np.array_equal(brake_command('velocity', np.zeros(6), 0.01, 1.0, command_dim=3), np.zeros(3))
+    v = z[2:].copy()                                                  # braking to rest, step by step
+    for _ in range(10):
+        v = v + brake_command('acceleration', np.r_[0.0, 0.0, v], 0.01, 10.0) * 0.01
+    assert np.allclose(v, 0.0, atol=1e-12)

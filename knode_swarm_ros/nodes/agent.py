@@ -20,10 +20,11 @@ from functools import partial
 
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from . import qos
+from .agent_lifecycle import ManagedAgentMixin
 from .agent_link import AgentLink
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
 from .agent_unicycle import AgentUnicycle
@@ -84,11 +85,22 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
     return policy
 
 
-class AgentNode(Node):
-    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md)."""
+class AgentNode(ManagedAgentMixin, LifecycleNode):
+    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md); a
+    lifecycle node (:mod:`.agent_lifecycle`) that configures and activates itself unless managed."""
 
     def __init__(self, node_name: str = 'agent', **kwargs):
         super().__init__(node_name, **kwargs)
+        self.managed = declare(self, 'managed', False, 'true: wait for the lifecycle services (configure, then '
+                               'activate); false: configure and activate at start')
+        if not self.managed:
+            self._setup()  # errors propagate: exit status 2 with the message
+            self.configured = True
+            self.trigger_configure()
+            self.trigger_activate()
+
+    def _setup(self) -> None:
+        """Parameters, policy (loaded, checked, warmed up), subscriptions, timers: configure."""
         robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
         if robot_id < 0:
             raise ConfigError("parameter 'id' is required: pass -p id:=N")
@@ -197,7 +209,7 @@ class AgentNode(Node):
     def _lockstep_poll(self) -> None:
         cmd = self.logic.lockstep_poll(time.monotonic())
         if cmd is not None:
-            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self._publish_command(cmd)
         self._log_events()
 
     def _on_lockstep_timer(self) -> None:
@@ -237,6 +249,9 @@ class AgentNode(Node):
         self._flush_drops()
 
     def _publish_command(self, cmd) -> None:
+        if not self.active:  # managed and not active: only the stop after deactivate, then nothing
+            self._brake(cmd.stamp_ns)
+            return
         if self.unicycle.enabled:  # differential drive: cmd_vel (linear.x, angular.z)
             self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
         else:
@@ -279,6 +294,8 @@ class AgentNode(Node):
 
     def _status(self) -> dict:
         status = self.logic.status()
+        status['ready'] = bool(status['ready'] and self.active)  # a simulator waits for activation
+        status['lifecycle'] = 'active' if self.active else 'inactive'
         if self.link.enabled:
             status['link'] = self.link.status()
         if getattr(self, 'unicycle', None) is not None and self.unicycle.enabled:

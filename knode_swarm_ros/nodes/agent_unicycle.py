@@ -85,6 +85,10 @@ class AgentUnicycle:
             v, w = self.mapper.stop()
         else:
             v, w = self.mapper(command.value, self.yaw, self.point_velocity)
+        self.publish_raw(stamp_msg, v, w)
+
+    def publish_raw(self, stamp_msg, v: float, w: float) -> None:
+        """Publish (linear.x, angular.z) = (v, w) as it is."""
         msg = self.msg_type()
         twist = msg.twist if self.stamped else msg
         twist.linear.x, twist.angular.z = float(v), float(w)

@@ -102,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
     add_link_arguments(p)
+    p.add_argument('--managed', action='store_true', help='agents as managed (lifecycle) nodes: configure every '
+                   'agent, then activate them together')
     return p
 
 
@@ -236,7 +238,11 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
                  'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
                  'parity_batch': not a.no_parity_batch, 'use_sim_time': True, **link_parameters(a, plan.mode)}
+        agent['managed'] = bool(a.managed)
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
+        if a.managed:  # configures every agent, then activates them together, then exits 0
+            out['lifecycle_manager'] = python + [f'{PACKAGE}.nodes.lifecycle_manager', '--ros-args', '-p',
+                                                 f'robots:={plan.robots}', '-p', f'timeout:={float(a.startup_timeout)}']
         for i in range(plan.robots):
             out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
                                           '-p', f'id:={i}', '-p',
@@ -610,6 +616,9 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             rc = c.proc.returncode
             if c is rec and rc == 0:
                 continue  # saved after the simulator said done
+            if c.name == 'lifecycle_manager' and rc == 0:
+                _say('every agent configured, then activated together')
+                continue
             if c is sim and rc == 0:
                 _say('the simulator has finished')
                 end = time.monotonic() + 15.0
