@@ -443,3 +443,30 @@ def test_managed_agent_through_the_lifecycle_services(ros, flock_policy):
     # Unmanaged (the default): active at once, no lifecycle manager needed.
     plain = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime')
     assert plain.active and _lifecycle(io, ros, 'agent_0') == 'active'
+
+
+def test_agent_publishes_its_health_on_diagnostics(ros, flock_policy):
+    from diagnostic_msgs.msg import DiagnosticArray
+    agent = _agent(ros, id=2, robots=3, policy=str(flock_policy), mode='realtime', state_timeout=60.0,
+                   status_period=0.2)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(3)}
+    reports = []
+    io.create_subscription(DiagnosticArray, '/diagnostics', reports.append, qos.DIAGNOSTICS)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 0.0, 1.0], [0.5, -0.4, -0.5, 0.5]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in range(3):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    def healthy():
+        if not reports:
+            return False
+        entry = reports[-1].status[0]
+        values = {kv.key: kv.value for kv in entry.values}
+        return values.get('heard') == '3/3' and values.get('neighbours') == '2' and entry.level == b'\x00'
+
+    assert ros.spin_until(healthy, each=publish, timeout=60)
+    entry = reports[-1].status[0]
+    assert entry.name == 'knode_swarm agent robot_2' and entry.hardware_id == 'robot_2' and entry.message == 'ok'

@@ -24,6 +24,7 @@ from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from . import qos
+from .agent_health import AgentHealth
 from .agent_lifecycle import ManagedAgentMixin
 from .agent_link import AgentLink
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
@@ -149,6 +150,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.spec = self.logic.spec
         self._warm_up()
         self.unicycle = AgentUnicycle(self, robot_id, self.spec, mode, control_rate, qos.COMMAND)  # off by default
+        self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
 
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -290,7 +292,11 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.get_logger().warning(text)
 
     def _publish_status(self) -> None:
-        self.status_pub.publish(String(data=status_json(**self._status())))
+        status = self._status()
+        self.status_pub.publish(String(data=status_json(**status)))
+        last = self.logic.last_command
+        self.health.publish(status, self.get_clock().now().nanoseconds, self.logic.newest_ns.get(self.logic.me),
+                            0 if last is None else last.neighbours, time.monotonic())
 
     def _status(self) -> dict:
         status = self.logic.status()

@@ -12,12 +12,14 @@
 * ``recorder/progress``: :data:`PROGRESS`, reliable, volatile, keep last 10: the simulator's
   lockstep flow control.
 * ``recorder/avd``, ``recorder/amd``: :data:`METRICS`, reliable, volatile, keep last 10.
+* ``/diagnostics``: :data:`DIAGNOSTICS`, reliable, volatile, keep last 10: what
+  diagnostic_updater and the aggregator use.
 * ``markers``: :data:`MARKERS`, reliable, volatile, keep last 1: RViz's default; only the
   newest picture matters.
 """
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS']
+__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'DIAGNOSTICS']
 
 
 def _profile(depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE):
@@ -32,3 +34,4 @@ STATUS = _profile(1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PROGRESS = _profile(10)
 METRICS = _profile(10)
 MARKERS = _profile(1)
+DIAGNOSTICS = _profile(10)
