@@ -95,3 +95,21 @@ def test_brake_command_stops_a_double_integrator_within_the_limit():
     for _ in range(10):
         v = v + brake_command('acceleration', np.r_[0.0, 0.0, v], 0.01, 10.0) * 0.01
     assert np.allclose(v, 0.0, atol=1e-12)
+
+
+def test_unicycle_swarm_without_commands_drives_straight_like_the_double_integrator():
+    from knode_swarm_ros.core import rollout
+    from training.unicycle_study import unicycle_rollout
+    rng = np.random.default_rng(5)
+    z0 = np.concatenate([rng.uniform(-3, 3, (2, 4, 2)), rng.normal(size=(2, 4, 2))], axis=-1)
+
+    def zero(Y, mask):
+        return np.zeros((Y.shape[0], 2))
+    uni = unicycle_rollout(zero, z0, 50, UnicycleLimits(lookahead=0.2), 5.0, 4, 0.01)
+    di = rollout(zero, z0, 50, 'flock2d', 5.0, 4, 0, 0.01)
+    assert np.allclose(uni, di, atol=1e-9)
+    # A policy that brakes (u = -v / 0.5) slows the unicycles down as it slows the point masses.
+    brake = lambda Y, mask: -Y[:, 0, 2:] / 0.5  # noqa: E731
+    uni = unicycle_rollout(brake, z0, 100, UnicycleLimits(lookahead=0.2), 5.0, 4, 0.01)
+    speed = np.linalg.norm(uni[:, :, :, 2:], axis=-1)
+    assert np.all(speed[:, -1] < 0.2 * speed[:, 0] + 1e-9)
