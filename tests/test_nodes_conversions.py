@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from knode_swarm_ros.nodes.odom_mapping import rotate
 
 import nav_msgs.msg  # noqa: F401,E402  (a broken install must fail, not skip)
 
@@ -57,9 +58,12 @@ def test_time_messages_are_exact_nanoseconds():
 def test_flock2d_odometry_round_trip_and_fields():
     z = np.array([1.25, -3.5, 0.1, -2.0]) + 1e-13
     msg = state_to_odom(4, 1_230_000_000, z, 'flock2d')
-    assert msg.header.frame_id == 'world' and msg.child_frame_id == 'robot_4'
+    assert msg.header.frame_id == 'world' and msg.child_frame_id == 'robot_4/base_link'  # REP 105
     assert time_ns(msg.header.stamp) == 1_230_000_000
-    p, v = msg.pose.pose.position, msg.twist.twist.linear
+    p, v, o = msg.pose.pose.position, msg.twist.twist.linear, msg.pose.pose.orientation
+    # A holonomic point mass reports a body that does not turn: the child frame is parallel to
+    # the world frame, so the body-frame twist is the world velocity, exactly.
+    assert (o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 1.0)
     assert (p.x, p.y, p.z, v.x, v.y, v.z) == (z[0], z[1], 0.0, z[2], z[3], 0.0)
     out = odom_to_state(msg, 'flock2d')
     assert out.dtype == np.float64 and np.array_equal(out, z)  # bit for bit
@@ -73,7 +77,10 @@ def test_boids3d_odometry_round_trip():
         out = odom_to_state(msg, 'boids3d')
         assert np.array_equal(out[:3], z[:3])
         assert np.abs(out[3:] - z[3:]).max() <= 1e-15
-        assert (msg.twist.twist.linear.x, msg.twist.twist.linear.z) == (1.0, 3.0)
+        # The informative velocity travels in the child frame (REP 105): the orientation maps it back.
+        o, lin = msg.pose.pose.orientation, msg.twist.twist.linear
+        back = rotate([o.x, o.y, o.z, o.w], [lin.x, lin.y, lin.z])
+        assert np.allclose(back, [1.0, 2.0, 3.0], rtol=0, atol=1e-14)
 
 
 def test_commands_round_trip():
@@ -108,7 +115,7 @@ def test_serialized_odometry_equals_rclpy_serialization_and_decodes_the_same():
                 assert len(ours) == len(data)
                 assert serialization.deserialize_message(ours, Odometry) == msg
                 got_ns, frame, got = odom_from_cdr(data, scenario)
-                assert got_ns == ns and frame == f'robot_{robot}'
+                assert got_ns == ns and frame == f'robot_{robot}/base_link'
                 assert np.array_equal(got, odom_to_state(msg, scenario))
     # A message from elsewhere (other frame names, covariances set) decodes the same way too.
     msg = state_to_odom(1, 5, np.array([1.0, 2.0, 3.0, 4.0]), 'flock2d')

@@ -287,3 +287,229 @@ def test_parameter_typos_and_shadowed_values_are_refused(tmp_path, ros_domain_id
     assert shadowed_overrides(good, 'agent_0') == []
     assert shadowed_overrides(['x', '--ros-args', '-p', 'mode:=lockstep', '--params-file',
                                str(REPO / 'config' / 'agent_flock2d.yaml')], 'agent_0')[0][0] == 'mode'
+
+
+def _foreign_odom(robot, stamp, z, yaw, twist_frame):
+    """Odometry as a foreign driver publishes it: its own yaw in the pose, its own child frame
+    name, angular velocity set, the twist in the body frame (REP 105) or, deviating, the world's."""
+    msg = Odometry()
+    msg.header.stamp = time_msg(stamp)
+    msg.header.frame_id = 'world'
+    msg.child_frame_id = f'robot_{robot}/base_footprint'
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(z[0]), float(z[1])
+    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = float(np.sin(yaw / 2)), float(np.cos(yaw / 2))
+    c, s = np.cos(yaw), np.sin(yaw)
+    vx, vy = (c * z[2] + s * z[3], -s * z[2] + c * z[3]) if twist_frame == 'body' else (z[2], z[3])
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y = float(vx), float(vy)
+    msg.twist.twist.angular.z = 0.4
+    return msg
+
+
+@pytest.mark.parametrize('twist_frame', ['body', 'world'])
+def test_foreign_odometry_in_either_twist_frame_gives_the_same_command(ros, flock_policy, twist_frame):
+    """Robots facing every quadrant, publishing REP 105 body twists (agent default) or world-frame
+    twists (twist_frame:=world): the agent's command is the one the core computes from the world
+    states, the same in both cases."""
+    from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+    params = dict(id=1, robots=4, policy=str(flock_policy), mode='lockstep', use_sim_time=True)
+    if twist_frame == 'world':
+        params['twist_frame'] = 'world'
+    _agent(ros, **params)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(4)}
+    commands = []
+    io.create_subscription(AccelStamped, 'robot_1/cmd_accel', commands.append, qos.COMMAND)
+    Z = np.array([[0.0, 0.0, 1.0, 0.5], [0.8, 0.3, -0.7, 1.0], [1.5, -0.4, -0.5, -0.9], [2.0, 1.0, 0.6, -1.2]])
+    yaws = [0.4, 2.2, -2.6, -1.1]  # one robot per quadrant, none facing its velocity
+    stamp = 3 * 10_000_000
+
+    def publish():
+        for r in (3, 2, 0, 1):
+            pubs[r].publish(_foreign_odom(r, stamp, Z[r], yaws[r], twist_frame))
+
+    assert ros.spin_until(lambda: commands, each=publish), 'no command from the agent'
+    ns, u = msg_to_command(commands[0], 'flock2d')
+    policy = load_policy(flock_policy)
+    Y, mask = neighbour_matrix_single(1, Z[1], Z, 2, policy.d_cr, policy.k)
+    assert mask.sum() == 4
+    expected = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
+    assert ns == stamp and np.allclose(u, expected, rtol=0, atol=1e-6)
+    # Read with the wrong frame, the velocities (and so the command) would differ: the check can fail.
+    Z_wrong = Z.copy()
+    for r in range(4):
+        c, s = np.cos(yaws[r]), np.sin(yaws[r])
+        Z_wrong[r, 2:] = (c * Z[r, 2] + s * Z[r, 3], -s * Z[r, 2] + c * Z[r, 3])
+    Yw, maskw = neighbour_matrix_single(1, Z_wrong[1], Z_wrong, 2, policy.d_cr, policy.k)
+    assert not np.allclose(np.clip(policy(Yw[None], maskw[None])[0], -10, 10), expected, rtol=0, atol=1e-6)
+
+
+def test_agent_link_model_drops_counts_and_respects_radio_range(ros, flock_policy):
+    """link_loss and link_range on a realtime agent: lost and out-of-range neighbour states never
+    reach the logic, everything is counted in the status, the own state is never withheld."""
+    agent = _agent(ros, id=0, robots=3, policy=str(flock_policy), mode='realtime', link_loss=0.5, link_range=5.0,
+                   link_seed=3, state_timeout=60.0)  # a loaded machine may deliver late: nothing is too old
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(3)}
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, 1.0], [50.0, 0.0, 0.0, 0.0]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in range(3):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    link = agent.link.model.counters
+    assert ros.spin_until(lambda: link['offered'] >= 60, each=publish, timeout=60)
+    assert link['offered'] == link['out_of_range'] + link['lost'] + link['delivered']
+    assert link['out_of_range'] >= link['offered'] // 2 - 2     # every state of robot 2 (robot 0 first heard)
+    assert link['lost'] > 0 and link['delivered'] > 0
+    assert 2 not in agent.logic.newest_ns and 1 in agent.logic.newest_ns and 0 in agent.logic.newest_ns
+    status = agent._status()
+    assert status['link']['lost'] == link['lost']
+    with pytest.raises(ConfigError, match='link'):
+        _agent(ros, id=1, robots=3, policy=str(flock_policy), mode='lockstep', link_loss=0.1)
+
+
+@pytest.mark.parametrize('stamped', [True, False])
+def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_policy, stamped):
+    """command_interface unicycle: the core's acceleration command, held over one control period,
+    becomes the velocity of the point 0.2 ahead of the axle, mapped to (linear.x, angular.z) at the
+    robot's heading from its REP 105 Odometry (body twist, angular.z)."""
+    from geometry_msgs.msg import Twist, TwistStamped
+    from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+    from knode_swarm_ros.core.unicycle import point_ahead
+    agent = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime', control_rate=20.0,
+                   state_timeout=60.0, command_interface='unicycle', unicycle_stamped=stamped,
+                   unicycle_lookahead=0.2, max_linear_speed=50.0, max_angular_speed=500.0)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
+    got = []
+    io.create_subscription(TwistStamped if stamped else Twist, 'robot_0/cmd_vel', got.append, qos.COMMAND)
+    yaw, speed, turn = 2.3, 0.5, 0.3
+    own_world_v = speed * np.array([np.cos(yaw), np.sin(yaw)])
+    Z = np.array([[0.0, 0.0, *own_world_v], [1.0, 0.5, 0.2, -0.1]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        own = state_to_odom(0, now, Z[0], 'flock2d')   # position; the orientation and body twist follow
+        own.pose.pose.orientation.z, own.pose.pose.orientation.w = float(np.sin(yaw / 2)), float(np.cos(yaw / 2))
+        own.twist.twist.linear.x, own.twist.twist.linear.y = speed, 0.0
+        own.twist.twist.angular.z = turn
+        pubs[1].publish(state_to_odom(1, now, Z[1], 'flock2d'))
+        pubs[0].publish(own)
+
+    assert ros.spin_until(lambda: len(got) >= 2 and agent.logic.ready, each=publish, timeout=60)
+    policy = load_policy(flock_policy)
+    Y, mask = neighbour_matrix_single(0, Z[0], Z, 2, policy.d_cr, policy.k)
+    u = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
+    _, point_v = point_ahead(0.0, 0.0, yaw, speed, turn, 0.2)
+    want = point_v + u / 20.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    v, w = c * want[0] + s * want[1], (-s * want[0] + c * want[1]) / 0.2
+    msg = got[-1]
+    twist = msg.twist if stamped else msg
+    assert twist.linear.x == pytest.approx(v, abs=1e-5) and twist.angular.z == pytest.approx(w, abs=1e-4)
+    assert twist.linear.y == 0.0 and twist.linear.z == 0.0
+    if stamped:
+        assert msg.header.frame_id == 'robot_0/base_link'
+    assert agent._status()['unicycle']['periods'] >= 2
+    with pytest.raises(ConfigError, match='realtime'):
+        _agent(ros, id=1, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle')
+    with pytest.raises(ConfigError, match='command_interface'):
+        _agent(ros, id=1, robots=2, policy=str(flock_policy), command_interface='twist')
+
+
+def _lifecycle(io, ros, node_name, transition=None):
+    """get_state, or change_state to ``transition`` (a lifecycle_msgs Transition id), through the services."""
+    from lifecycle_msgs.srv import ChangeState, GetState
+    if transition is None:
+        client = io.create_client(GetState, f'{node_name}/get_state')
+        request = GetState.Request()
+    else:
+        client = io.create_client(ChangeState, f'{node_name}/change_state')
+        request = ChangeState.Request()
+        request.transition.id = transition
+    assert ros.spin_until(lambda: client.service_is_ready(), timeout=30)
+    future = client.call_async(request)
+    assert ros.spin_until(lambda: future.done(), timeout=30)
+    io.destroy_client(client)
+    result = future.result()
+    return result.current_state.label if transition is None else result.success
+
+
+def test_managed_agent_through_the_lifecycle_services(ros, flock_policy):
+    """managed:=true: unconfigured until configured, quiet until activated, commands when active,
+    on deactivate brakes an acceleration robot to rest (one saturated stop per period) and then
+    publishes nothing; an unmanaged agent is active by itself."""
+    from lifecycle_msgs.msg import Transition
+    from knode_swarm_ros.nodes.agent import AgentNode
+    from rclpy.parameter import Parameter
+    params = dict(id=1, robots=2, policy=str(flock_policy), mode='realtime', control_rate=20.0,
+                  state_timeout=60.0, managed=True)
+    agent = ros.add(AgentNode('agent_1', context=ros.context,
+                              parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]))
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
+    commands = []
+    io.create_subscription(AccelStamped, 'robot_1/cmd_accel', commands.append, qos.COMMAND)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 3.0, -1.0]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in (0, 1):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    assert _lifecycle(io, ros, 'agent_1') == 'unconfigured'
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_CONFIGURE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'inactive'
+    assert ros.spin_until(lambda: agent.logic.ready, each=publish, timeout=30)
+    ros.spin_until(lambda: False, each=publish, timeout=1.0)        # ticks happen; nothing may come out
+    assert commands == [] and agent._status()['ready'] is False
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_ACTIVATE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'active'
+    assert ros.spin_until(lambda: len(commands) >= 3, each=publish, timeout=30)
+    assert agent._status()['ready'] is True
+    assert _lifecycle(io, ros, 'agent_1', Transition.TRANSITION_DEACTIVATE) is True
+    assert _lifecycle(io, ros, 'agent_1') == 'inactive'
+    n_active = len(commands)
+    # The robot still moves at (3, -1): brake commands -v/dt saturated at 10 -> (-10, 10).
+    assert ros.spin_until(lambda: len(commands) >= n_active + 2, each=publish, timeout=30)
+    _, u = msg_to_command(commands[-1], 'flock2d')
+    assert np.allclose(u, [-10.0, 10.0])
+    # Once the robot stands, the stop ends and the inactive agent goes quiet.
+    Z[1, 2:] = 0.0
+    assert ros.spin_until(lambda: not agent.braking, each=publish, timeout=30)
+    sent = agent.stops_sent
+    assert ros.spin_until(lambda: np.allclose(msg_to_command(commands[-1], 'flock2d')[1], 0.0), each=publish)
+    ticks = agent.logic.counters['commands']
+    assert ros.spin_until(lambda: agent.logic.counters['commands'] >= ticks + 5, each=publish)
+    assert agent.stops_sent == sent                               # ticks go on, nothing is published
+    # Unmanaged (the default): active at once, no lifecycle manager needed.
+    plain = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime')
+    assert plain.active and _lifecycle(io, ros, 'agent_0') == 'active'
+
+
+def test_agent_publishes_its_health_on_diagnostics(ros, flock_policy):
+    from diagnostic_msgs.msg import DiagnosticArray
+    agent = _agent(ros, id=2, robots=3, policy=str(flock_policy), mode='realtime', state_timeout=60.0,
+                   status_period=0.2)
+    io = ros.node('test_io')
+    pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(3)}
+    reports = []
+    io.create_subscription(DiagnosticArray, '/diagnostics', reports.append, qos.DIAGNOSTICS)
+    Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 0.0, 1.0], [0.5, -0.4, -0.5, 0.5]])
+
+    def publish():
+        now = agent.get_clock().now().nanoseconds
+        for r in range(3):
+            pubs[r].publish(state_to_odom(r, now, Z[r], 'flock2d'))
+
+    def healthy():
+        if not reports:
+            return False
+        entry = reports[-1].status[0]
+        values = {kv.key: kv.value for kv in entry.values}
+        return values.get('heard') == '3/3' and values.get('neighbours') == '2' and entry.level == b'\x00'
+
+    assert ros.spin_until(healthy, each=publish, timeout=60)
+    entry = reports[-1].status[0]
+    assert entry.name == 'knode_swarm agent robot_2' and entry.hardware_id == 'robot_2' and entry.message == 'ok'

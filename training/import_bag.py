@@ -100,9 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--use-twist", action="store_true",
                    help="velocities (flock2d) or headings (boids3d) from Odometry twist.twist.linear instead "
                         "of finite differences")
-    p.add_argument("--twist-frame", choices=("world", "body"), default="world",
-                   help="frame of the twist: world (this project's recorder) or body (REP 105 child frame; "
-                        "rotated by the pose orientation)")
+    p.add_argument("--twist-frame", choices=("world", "body"), default="body",
+                   help="frame of the twist: body (default; REP 105 child frame, rotated by the pose "
+                        "orientation, as this project's nodes and every robot driver publish it) or world")
     p.add_argument("--use-orientation", action="store_true",
                    help="boids3d: heading = +x axis of the pose orientation instead of the motion direction")
     p.add_argument("--heading-diff", choices=("backward", "central"), default=None,

@@ -20,7 +20,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 import numpy as np
 
 from ..nodes.common import WORLD_FRAME, robot_frame
-from ..nodes.orientation import heading_to_quaternion, yaw_quaternion
+from ..nodes.odom_mapping import state_to_fields
 
 __all__ = ["BagError", "BagWriteError", "ODOMETRY", "POSE_STAMPED", "TF_MESSAGE", "SUPPORTED_TYPES",
            "normalise_type", "stamp_to_ns", "ns_to_stamp", "odometry_message", "Sample", "samples_of",
@@ -73,26 +73,17 @@ def ns_to_stamp(ns: int) -> Dict[str, int]:
 def odometry_message(scenario: str, z: np.ndarray, stamp_ns: int, robot_id: int, frame_id: str = WORLD_FRAME,
                      child_frame_id: Optional[str] = None, velocity: Optional[np.ndarray] = None) -> Dict[str, Any]:
     """One nav_msgs/Odometry as a dict for state ``z[d]``, field for field what
-    :func:`knode_swarm_ros.nodes.conversions.state_to_odom` publishes.
-
-    flock2d ``[px, py, vx, vy]``: position (px, py, 0), twist.linear (vx, vy, 0), orientation the
-    yaw of the velocity. boids3d ``[px, py, pz, hx, hy, hz]``: position p, orientation rotating +x
-    onto h, twist.linear = ``velocity`` (optional, for information) else zero. ``child_frame_id``
-    defaults to ``robot_<id>``.
+    :func:`knode_swarm_ros.nodes.conversions.state_to_odom` publishes: REP 105 (pose in
+    ``frame_id``, twist in the child frame), by the one mapping
+    :func:`knode_swarm_ros.nodes.odom_mapping.state_to_fields`. ``velocity`` (boids3d only,
+    optional, world frame) fills twist.linear in the child frame, for information;
+    ``child_frame_id`` defaults to ``robot_<id>/base_link``.
     """
-    z = np.asarray(z, dtype=np.float64)
-    linear = {"x": 0.0, "y": 0.0, "z": 0.0}
-    if scenario == "flock2d":
-        position = {"x": float(z[0]), "y": float(z[1]), "z": 0.0}
-        qx, qy, qz, qw = yaw_quaternion(float(z[2]), float(z[3]))
-        linear = {"x": float(z[2]), "y": float(z[3]), "z": 0.0}
-    elif scenario == "boids3d":
-        position = {"x": float(z[0]), "y": float(z[1]), "z": float(z[2])}
-        qx, qy, qz, qw = (float(v) for v in heading_to_quaternion(z[3:6]))
-        if velocity is not None:
-            linear = dict(zip("xyz", (float(v) for v in velocity)))
-    else:
+    if scenario not in ("flock2d", "boids3d"):
         raise BagWriteError(f"unknown scenario {scenario!r}; known: boids3d, flock2d")
+    (px, py, pz), (qx, qy, qz, qw), lin = state_to_fields(z, scenario, velocity)
+    position = {"x": px, "y": py, "z": pz}
+    linear = dict(zip("xyz", lin))
     zero36 = [0.0] * 36
     return {
         "header": {"stamp": ns_to_stamp(stamp_ns), "frame_id": frame_id},

@@ -250,7 +250,7 @@ def write_odometry_bag(path: PathLike, states: np.ndarray, dt: float, scenario: 
                        stamps: Optional[np.ndarray] = None, topic_fmt: str = "/robot_{id}/odom",
                        ids: Optional[Sequence[int]] = None, mask: Optional[np.ndarray] = None,
                        velocities: Optional[np.ndarray] = None, frame_id: str = WORLD_FRAME,
-                       child_frame_fmt: str = "robot_{id}", split_messages: Optional[int] = None,
+                       child_frame_fmt: str = "robot_{id}/base_link", split_messages: Optional[int] = None,
                        overwrite: bool = False, qos: Optional[QosSpec] = qos_specs.ODOM) -> Dict[str, Any]:
     """Write one swarm run ``states[T, n, d]`` as nav_msgs/Odometry messages, one topic per robot.
 

@@ -20,15 +20,20 @@ from functools import partial
 
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from . import qos
+from .agent_health import AgentHealth
+from .agent_lifecycle import ManagedAgentMixin
+from .agent_link import AgentLink
 from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
+from .agent_unicycle import AgentUnicycle
 from .common import (MODES, ConfigError, agent_status_topic,
-                     command_topic, odom_topic, robot_frame, robot_id_list, status_json)
+                     command_topic, is_robot_frame, odom_topic, robot_frame, robot_id_list, status_json)
 from .control_period import RATE_CHECKS, shipped_policy_for_rate
-from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
+from .conversions import (TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_fields_from_cdr,
+                          odom_from_cdr, time_msg)
 from .executor import run_node
 from .params import check_overrides, declare, declare_int_array, node_name_from_args
 
@@ -89,11 +94,22 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
     return policy
 
 
-class AgentNode(Node):
-    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md)."""
+class AgentNode(ManagedAgentMixin, LifecycleNode):
+    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md); a
+    lifecycle node (:mod:`.agent_lifecycle`) that configures and activates itself unless managed."""
 
     def __init__(self, node_name: str = 'agent', **kwargs):
         super().__init__(node_name, **kwargs)
+        self.managed = declare(self, 'managed', False, 'true: wait for the lifecycle services (configure, then '
+                               'activate); false: configure and activate at start')
+        if not self.managed:
+            self._setup()  # errors propagate: exit status 2 with the message
+            self.configured = True
+            self.trigger_configure()
+            self.trigger_activate()
+
+    def _setup(self) -> None:
+        """Parameters, policy (loaded, checked, warmed up), subscriptions, timers: configure."""
         robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
         if robot_id < 0:
             raise ConfigError("parameter 'id' is required: pass -p id:=N")
@@ -132,6 +148,10 @@ class AgentNode(Node):
                           int_range=(1, 256))
         status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
                                 float_range=(0.01, 3600.0))
+        self.twist_frame = declare(self, 'twist_frame', 'body', 'frame of the twist in the robots\' Odometry: body '
+                                   '(REP 105 child frame, rotated into the world by the pose orientation) or world '
+                                   '(a driver that deviates from REP 105)', choices=TWIST_FRAMES)
+        self.link = AgentLink(self, robot_id, mode)  # link model (loss, delay, range): off by default
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
         check_overrides(self, sys.argv)
 
@@ -145,6 +165,8 @@ class AgentNode(Node):
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
+        self.unicycle = AgentUnicycle(self, robot_id, self.spec, mode, control_rate, qos.COMMAND)  # off by default
+        self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
 
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -180,13 +202,17 @@ class AgentNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.spec)
+            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
         except CdrError as exc:
             self.logic.malformed()
             self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
             return
-        robot = topic_robot if frame in ('', robot_frame(topic_robot)) else None
+        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
+        if self.unicycle.enabled and robot == self.logic.me:
+            self.unicycle.observe_own(*odom_fields_from_cdr(data)[2:])
         now = self.get_clock().now().nanoseconds
+        if not self._through_link(robot, stamp, z, now):
+            return
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
             detail = (f"child_frame_id {frame!r} on {odom_topic(topic_robot)}" if outcome == 'unknown_id'
@@ -202,15 +228,32 @@ class AgentNode(Node):
     def _lockstep_poll(self) -> None:
         cmd = self.logic.lockstep_poll(time.monotonic())
         if cmd is not None:
-            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self._publish_command(cmd)
         self._log_events()
 
     def _on_lockstep_timer(self) -> None:
         self._lockstep_poll()
         self._flush_drops()
 
+    def _through_link(self, robot, stamp: int, z, now: int) -> bool:
+        """True: file the state now; False: the link model took it (lost, out of range, or
+        filed when its delay has passed, by :meth:`_release_link`)."""
+        if not self.link.enabled or robot is None or robot == self.logic.me:
+            return True
+        latest = self.logic.buffer.latest(self.logic.me)
+        self.link.offer(now * 1e-9, robot, stamp, z, None if latest is None else latest[1], self.spec.position_dim)
+        self._release_link(now)
+        return False
+
+    def _release_link(self, now: int) -> None:
+        # Before the clock runs (0: the simulator waits for every agent to hear every robot) a delay
+        # cannot pass: deliver what the link let through, or the swarm would never start.
+        for robot, stamp, z in self.link.due(now * 1e-9 if now > 0 else float('inf')):
+            self.logic.receive(robot, stamp, z, now, time.monotonic())
+
     def _on_tick(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._release_link(now)
         cmd = self.logic.tick(now)
         if cmd is None:
             self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
@@ -221,16 +264,28 @@ class AgentNode(Node):
                                 f'{self.logic.config.state_timeout:g} s): publishing a stop command '
                                 '(zero velocity, or a brake to rest)',
                                 warn=True)
-            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self._publish_command(cmd)
         self._log_events()
         self._flush_drops()
+
+    def _publish_command(self, cmd) -> None:
+        if not self.active:  # managed and not active: only the stop after deactivate, then nothing
+            self._brake(cmd.stamp_ns)
+            return
+        if self.unicycle.enabled:  # differential drive: cmd_vel (linear.x, angular.z)
+            self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
+        else:
+            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
 
     # --- logging -------------------------------------------------------------------
     def _throttled(self, key: str, text: str, warn: bool = False) -> None:
         now = time.monotonic()
         if now - self._last_log.get(key, -1e9) >= _LOG_EVERY_S:
             self._last_log[key] = now
-            (self.get_logger().warning if warn else self.get_logger().info)(text)
+            if warn:  # two call sites: rclpy refuses one call site logging at two severities
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
 
     def _note_drop(self, reason: str, detail: str) -> None:
         entry = self._drops[reason]
@@ -255,7 +310,21 @@ class AgentNode(Node):
             self.get_logger().warning(text)
 
     def _publish_status(self) -> None:
-        self.status_pub.publish(String(data=status_json(**self.logic.status())))
+        status = self._status()
+        self.status_pub.publish(String(data=status_json(**status)))
+        last = self.logic.last_command
+        self.health.publish(status, self.get_clock().now().nanoseconds, self.logic.newest_ns.get(self.logic.me),
+                            0 if last is None else last.neighbours, time.monotonic())
+
+    def _status(self) -> dict:
+        status = self.logic.status()
+        status['ready'] = bool(status['ready'] and self.active)  # a simulator waits for activation
+        status['lifecycle'] = 'active' if self.active else 'inactive'
+        if self.link.enabled:
+            status['link'] = self.link.status()
+        if getattr(self, 'unicycle', None) is not None and self.unicycle.enabled:
+            status['unicycle'] = self.unicycle.status()
+        return status
 
     def write_report(self) -> None:
         """Write the counters to the ``report`` file (if set)."""
@@ -263,7 +332,7 @@ class AgentNode(Node):
             return
         tmp = f'{self.report_path}.tmp{os.getpid()}'
         with open(tmp, 'w') as fh:
-            json.dump(self.logic.status(), fh)
+            json.dump(self._status(), fh)
         os.replace(tmp, self.report_path)
 
 

@@ -23,7 +23,7 @@ __all__ = [
     'ConfigError', 'EXIT_OK', 'EXIT_FAILURE', 'EXIT_CONFIG', 'EXIT_AGENT_LOST', 'EXIT_INTERRUPTED',
     'MODES', 'odom_topic', 'command_topic', 'agent_status_topic', 'SIMULATOR_STATUS_TOPIC',
     'RECORDER_STATUS_TOPIC', 'RECORDER_PROGRESS_TOPIC', 'MARKERS_TOPIC', 'CLOCK_TOPIC',
-    'AVD_TOPIC', 'AMD_TOPIC', 'robot_frame', 'parse_robot_frame', 'WORLD_FRAME', 'stamp_ns',
+    'AVD_TOPIC', 'AMD_TOPIC', 'robot_frame', 'parse_robot_frame', 'is_robot_frame', 'WORLD_FRAME', 'stamp_ns',
     'step_of', 'percentiles', 'status_json', 'parse_status', 'robot_id_list', 'dt_mismatch']
 
 #: Exit statuses of the executables.
@@ -75,16 +75,23 @@ def agent_status_topic(robot: int) -> str:
 
 
 def robot_frame(robot: int) -> str:
-    """child_frame_id of a robot's odometry: ``robot_<id>``."""
-    return f'robot_{int(robot)}'
+    """child_frame_id of a robot's odometry (REP 105 body frame): ``robot_<id>/base_link``."""
+    return f'robot_{int(robot)}/base_link'
 
 
 def parse_robot_frame(frame: str) -> Optional[int]:
-    """The id in ``robot_<id>``, or None for anything else."""
+    """The id in ``robot_<id>`` or ``robot_<id>/<link>`` (e.g. ``robot_3/base_link``,
+    ``robot_3/base_footprint``), or None for anything else."""
     if not frame.startswith('robot_'):
         return None
-    tail = frame[len('robot_'):]
+    tail = frame[len('robot_'):].split('/', 1)[0]
     return int(tail) if tail.isdigit() else None
+
+
+def is_robot_frame(frame: str, robot: int) -> bool:
+    """Whether an Odometry ``child_frame_id`` may belong to robot ``robot``: empty (unset),
+    or one of its frames ``robot_<id>[/<link>]`` (a message naming another robot is not)."""
+    return frame == '' or parse_robot_frame(frame) == int(robot)
 
 
 def stamp_ns(step: int, dt: float) -> int:

@@ -1,25 +1,13 @@
 """The one place that maps states and commands to and from ROS messages.
 
-State z of robot ``i`` <-> ``nav_msgs/Odometry`` on ``robot_<i>/odom`` (all values float64,
-world frame; ``header.frame_id = 'world'``, ``child_frame_id = 'robot_<i>'``,
-``header.stamp`` = the state's time):
-
-=========  ==========================================  =============================================
-scenario   state entry                                 Odometry field
-=========  ==========================================  =============================================
-flock2d    px, py                                      pose.pose.position.x, .y (z = 0)
-flock2d    vx, vy                                      twist.twist.linear.x, .y (z = 0)
-flock2d    (not part of z)                             pose.pose.orientation = yaw of the velocity
-                                                       (identity when v = 0), for RViz only
-boids3d    px, py, pz                                  pose.pose.position.x, .y, .z
-boids3d    hx, hy, hz (unit heading)                   pose.pose.orientation = the unit quaternion
-                                                       that rotates +x onto h (see below)
-boids3d    (not part of z)                             twist.twist.linear = the velocity applied
-                                                       over the last step, informative only
-=========  ==========================================  =============================================
-
-Note that REP 105 puts an Odometry twist in the child frame; here (DESIGN.md) the twist is
-in the world frame, like the state.
+State z of robot ``i`` <-> ``nav_msgs/Odometry`` on ``robot_<i>/odom`` per REP 105 (all values
+float64; ``header.frame_id`` = the world frame, ``world`` by default; ``child_frame_id`` =
+``robot_<i>/base_link`` by default; ``header.stamp`` = the state's time): pose in the world
+frame, twist in the child frame. The field-by-field mapping (which state entry goes where, and
+why a flock2d robot reports the identity orientation) is the ROS-free
+:mod:`knode_swarm_ros.nodes.odom_mapping`, shared with the bag writer; this module only moves
+its vectors into and out of messages. Decoding reads the twist in the child frame (``body``,
+REP 105) unless the caller says the publisher puts it in the world frame (``twist_frame``).
 
 Heading quaternion (x, y, z, w): for a unit h with h_x >= 0, q = normalise(w = 1 + h_x,
 (x, y, z) = (+x) x h = (0, -h_z, h_y)), the shortest rotation taking +x to h; for h_x < 0,
@@ -56,11 +44,12 @@ from nav_msgs.msg import Odometry
 from ..core.scenarios import Scenario, get_scenario
 from . import orientation
 from .common import WORLD_FRAME, robot_frame
+from .odom_mapping import TWIST_FRAMES, fields_to_state, state_to_fields
 from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
-           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr',
-           'CdrError', 'command_msg_type', 'command_to_msg', 'msg_to_command']
+           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr', 'odom_fields_from_cdr',
+           'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'msg_to_command']
 
 ScenarioLike = Union[str, Scenario]
 
@@ -93,47 +82,34 @@ def quaternion_to_heading(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 
 def state_to_odom(robot: int, ns: int, z, scenario: ScenarioLike,
-                  velocity: Optional[np.ndarray] = None) -> Odometry:
-    """Odometry of robot ``robot``'s state ``z [d]`` at stamp ``ns`` (see the module table).
+                  velocity: Optional[np.ndarray] = None, frame_id: str = WORLD_FRAME,
+                  child_frame_id: Optional[str] = None) -> Odometry:
+    """Odometry of robot ``robot``'s state ``z [d]`` at stamp ``ns`` (see :mod:`.odom_mapping`).
 
-    ``velocity`` (boids3d only, optional) fills twist.linear, for information.
+    ``velocity`` (boids3d only, optional, world frame) fills twist.linear, for information;
+    ``child_frame_id`` defaults to ``robot_<robot>/base_link``.
     """
-    spec = _spec(scenario)
-    z = np.asarray(z, dtype=np.float64)
+    position, quaternion, linear = state_to_fields(z, _spec(scenario), velocity)
     msg = Odometry()
     msg.header.stamp = time_msg(ns)
-    msg.header.frame_id = WORLD_FRAME
-    msg.child_frame_id = robot_frame(robot)
+    msg.header.frame_id = frame_id
+    msg.child_frame_id = robot_frame(robot) if child_frame_id is None else child_frame_id
     pos = msg.pose.pose.position
     o = msg.pose.pose.orientation
     lin = msg.twist.twist.linear
-    if spec.command == 'acceleration':  # flock2d: [px, py, vx, vy]
-        pos.x, pos.y = float(z[0]), float(z[1])
-        lin.x, lin.y = float(z[2]), float(z[3])
-        o.x, o.y, o.z, o.w = yaw_quaternion(float(z[2]), float(z[3]))
-    else:  # boids3d: [px, py, pz, hx, hy, hz]
-        pos.x, pos.y, pos.z = float(z[0]), float(z[1]), float(z[2])
-        o.x, o.y, o.z, o.w = heading_to_quaternion(z[3:6])
-        if velocity is not None:
-            lin.x, lin.y, lin.z = (float(v) for v in velocity)
+    pos.x, pos.y, pos.z = position
+    o.x, o.y, o.z, o.w = quaternion
+    lin.x, lin.y, lin.z = linear
     return msg
 
 
-def _state_from(spec: Scenario, position, quaternion, linear) -> np.ndarray:
-    """The state z from the Odometry fields: position (x, y, z), orientation (x, y, z, w) and
-    twist.linear (x, y, z) -- the decoding half of the module table."""
-    if spec.command == 'acceleration':
-        return np.array([position[0], position[1], linear[0], linear[1]], dtype=np.float64)
-    h = quaternion_to_heading(*quaternion)
-    return np.array([position[0], position[1], position[2], h[0], h[1], h[2]], dtype=np.float64)
-
-
-def odom_to_state(msg: Odometry, scenario: ScenarioLike) -> np.ndarray:
-    """State ``z [d]`` float64 of an Odometry message (no validation: callers check finiteness)."""
+def odom_to_state(msg: Odometry, scenario: ScenarioLike, twist_frame: str = 'body') -> np.ndarray:
+    """State ``z [d]`` float64 of an Odometry message, its twist read in ``twist_frame`` (``body``:
+    REP 105; ``world``) (no validation: callers check finiteness)."""
     p = msg.pose.pose.position
     o = msg.pose.pose.orientation
     v = msg.twist.twist.linear
-    return _state_from(_spec(scenario), (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z))
+    return fields_to_state((p.x, p.y, p.z), (o.x, o.y, o.z, o.w), (v.x, v.y, v.z), _spec(scenario), twist_frame)
 
 
 # --- serialized Odometry (CDR, as rmw_fastrtps puts it on the wire) ---------------------------
@@ -156,24 +132,17 @@ def _put_string(buf: bytearray, text: str) -> None:
     buf.extend(raw)
 
 
-def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Optional[np.ndarray] = None) -> bytes:
-    """The serialized form of ``state_to_odom(robot, ns, z, scenario, velocity)``, built directly."""
-    spec = _spec(scenario)
-    z = np.asarray(z, dtype=np.float64)
+def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Optional[np.ndarray] = None,
+                frame_id: str = WORLD_FRAME, child_frame_id: Optional[str] = None) -> bytes:
+    """The serialized form of ``state_to_odom(robot, ns, z, scenario, velocity, frame_id,
+    child_frame_id)``, built directly."""
     if ns < 0:
         raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
-    if spec.command == 'acceleration':
-        position = (float(z[0]), float(z[1]), 0.0)
-        quaternion = yaw_quaternion(float(z[2]), float(z[3]))
-        linear = (float(z[2]), float(z[3]), 0.0)
-    else:
-        position = (float(z[0]), float(z[1]), float(z[2]))
-        quaternion = heading_to_quaternion(z[3:6])
-        linear = (0.0, 0.0, 0.0) if velocity is None else tuple(float(v) for v in velocity)
+    position, quaternion, linear = state_to_fields(z, _spec(scenario), velocity)
     buf = bytearray(_CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
-    _put_string(buf, WORLD_FRAME)
-    _put_string(buf, robot_frame(robot))
+    _put_string(buf, frame_id)
+    _put_string(buf, robot_frame(robot) if child_frame_id is None else child_frame_id)
     _pad(buf, 8)
     buf.extend(struct.pack('<7d', *position, *quaternion))
     buf.extend(_ZEROS_36)
@@ -182,8 +151,9 @@ def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Option
     return bytes(buf)
 
 
-def odom_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, str, np.ndarray]:
-    """(stamp ns, child_frame_id, state ``z [d]``) of a serialized Odometry.
+def odom_fields_from_cdr(data: bytes) -> Tuple[int, str, Tuple[float, ...], Tuple[float, ...], Tuple[float, ...]]:
+    """(stamp ns, child_frame_id, pose (x, y, z, qx, qy, qz, qw), twist.linear [3], twist.angular [3])
+    of a serialized Odometry, as it is on the wire (no frame change).
 
     Reads plain CDR (XCDR1) in either byte order, as rmw_fastrtps writes it.
 
@@ -209,13 +179,24 @@ def odom_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, str, np.nda
         pos += (-(pos - 4)) % 8
         pose = struct.unpack_from(e + '7d', data, pos)
         pos += 56 + 8 * 36
-        linear = struct.unpack_from(e + '3d', data, pos)
+        twist = struct.unpack_from(e + '6d', data, pos)
         if pos + 48 + 8 * 36 != len(data):
             raise CdrError(f'{len(data)} bytes, expected {pos + 48 + 8 * 36}')
     except struct.error as exc:
         raise CdrError(f'truncated Odometry ({len(data)} bytes): {exc}') from None
     ns = int(sec) * 1_000_000_000 + int(nanosec)
-    return ns, frames[1], _state_from(_spec(scenario), pose[:3], pose[3:7], linear)
+    return ns, frames[1], pose, twist[:3], twist[3:]
+
+
+def odom_from_cdr(data: bytes, scenario: ScenarioLike, twist_frame: str = 'body') -> Tuple[int, str, np.ndarray]:
+    """(stamp ns, child_frame_id, state ``z [d]``) of a serialized Odometry, its twist read in
+    ``twist_frame`` (as :func:`odom_to_state`).
+
+    Raises:
+        CdrError: not a serialized Odometry (see :func:`odom_fields_from_cdr`).
+    """
+    ns, child, pose, linear, _ = odom_fields_from_cdr(data)
+    return ns, child, fields_to_state(pose[:3], pose[3:7], linear, _spec(scenario), twist_frame)
 
 
 def command_msg_type(scenario: ScenarioLike):

@@ -5,7 +5,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import qos_specs
 
-__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'profile']
+__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'DIAGNOSTICS', 'profile']
 
 _RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {'volatile': DurabilityPolicy.VOLATILE, 'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
@@ -24,3 +24,4 @@ STATUS = profile(qos_specs.STATUS)
 PROGRESS = profile(qos_specs.PROGRESS)
 METRICS = profile(qos_specs.METRICS)
 MARKERS = profile(qos_specs.MARKERS)
+DIAGNOSTICS = profile(qos_specs.DIAGNOSTICS)

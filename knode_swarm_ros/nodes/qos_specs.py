@@ -13,6 +13,8 @@ it and :mod:`knode_swarm_ros.bag` writes it into bags as the topics' ``offered_q
 * ``recorder/progress``: :data:`PROGRESS`, reliable, volatile, keep last 10: the simulator's
   lockstep flow control.
 * ``recorder/avd``, ``recorder/amd``: :data:`METRICS`, reliable, volatile, keep last 10.
+* ``/diagnostics``: :data:`DIAGNOSTICS`, reliable, volatile, keep last 10: what
+  diagnostic_updater and the aggregator use.
 * ``markers``: :data:`MARKERS`, reliable, volatile, keep last 1: RViz's default; only the
   newest picture matters.
 
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-__all__ = ['QosSpec', 'ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS']
+__all__ = ['QosSpec', 'ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'DIAGNOSTICS']
 
 
 class QosSpec(NamedTuple):
@@ -42,3 +44,4 @@ STATUS = QosSpec(1, durability='transient_local')
 PROGRESS = QosSpec(10)
 METRICS = QosSpec(10)
 MARKERS = QosSpec(1)
+DIAGNOSTICS = QosSpec(10)

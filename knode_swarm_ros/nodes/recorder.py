@@ -26,8 +26,8 @@ from ..core.scenarios import get_scenario
 from . import qos
 from .common import (AMD_TOPIC, AVD_TOPIC, EXIT_FAILURE, EXIT_OK, RECORDER_PROGRESS_TOPIC,
                      RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError, odom_topic, parse_status,
-                     robot_frame, status_json)
-from .conversions import CdrError, odom_from_cdr
+                     is_robot_frame, status_json)
+from .conversions import TWIST_FRAMES, CdrError, odom_from_cdr
 from .executor import run_node
 from .params import check_overrides, declare
 from .recorder_logic import FrameCollector, swarm_metrics
@@ -56,6 +56,8 @@ class RecorderNode(Node):
         if self.bag and importlib.util.find_spec('rosbags') is None:
             raise ConfigError(f"parameter 'bag' = {self.bag!r}: writing bags needs the rosbags package "
                               "(pip install 'knode_swarm_ros[bag]')")
+        self.twist_frame = declare(self, 'twist_frame', 'body', "frame of the Odometry twist: body (REP 105) or "
+                                   'world (a driver that deviates from REP 105)', choices=TWIST_FRAMES)
         metrics_rate = declare(self, 'metrics_rate', 5.0, 'avd/amd messages per wall second (0: none)',
                                float_range=(0.0, 1000.0))
         max_age = declare(self, 'max_age', 5.0, 'states stamped more than this many seconds before the clock '
@@ -101,11 +103,11 @@ class RecorderNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.scenario)
+            stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
         except CdrError:
             self.frames.counters['malformed'] += 1
             return
-        if frame not in ('', robot_frame(robot)):
+        if not is_robot_frame(frame, robot):
             self.frames.counters['unknown_id'] += 1
             return
         # The clock is a reference only when it is the simulation's (use_sim_time, as the swarm runs it).

@@ -91,6 +91,8 @@ class SimulatorNode(Node):
                                     'the last step', float_range=(0.0, 3600.0))
         d_cr = declare(self, 'd_cr', 0.0, 'radius of the neighbour links drawn in the markers (0: no links)',
                        float_range=(0.0, 1e9))
+        self.frame_id = declare(self, 'frame_id', 'world', "world frame of the odometry poses (header.frame_id; "
+                                "REP 105: the twist is in child_frame_id robot_<id>/base_link)")
         marker_rate = declare(self, 'marker_rate', 10.0, 'markers per wall second (0: none)',
                               float_range=(0.0, 1000.0))
         self.report_path = declare(self, 'report', '', 'write a JSON report (timings, latency, counters) here at '
@@ -180,7 +182,8 @@ class SimulatorNode(Node):
         velocity = self.spec.command == 'velocity'
         for r, pub in enumerate(self.odom_pubs):
             # serialized directly: the bytes of conversions.state_to_odom, without rclpy's conversion
-            pub.publish(odom_to_cdr(r, ns, self.sim.states[r], self.spec, self.sim.applied[r] if velocity else None))
+            pub.publish(odom_to_cdr(r, ns, self.sim.states[r], self.spec, self.sim.applied[r] if velocity else None,
+                                    self.frame_id))
         self.clock_pub.publish(ClockMsg(clock=time_msg(ns)))
         self._last_publish = time.monotonic()
         if self.phase == 'running':

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from .agent_link import add_link_arguments, link_parameters
 from .common import (EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, MODES,
                      ConfigError)
 
@@ -111,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
                    'temporary folder, removed after a successful run unless --keep-logs)')
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
+    add_link_arguments(p)
+    p.add_argument('--managed', action='store_true', help='agents as managed (lifecycle) nodes: configure every '
+                   'agent, then activate them together')
     return p
 
 
@@ -184,6 +188,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
             raise ConfigError(f"--{name.replace('_', '-')} must be > 0, got {value}")
     if args.timeout < 0:
         raise ConfigError(f'--timeout must be >= 0, got {args.timeout}')
+    link_parameters(args, args.mode)  # checks the --link-* flags
     record = Path(args.record).expanduser().resolve()
     if record.suffix != '.npz':
         raise ConfigError(f'--record {args.record}: the trajectory file must end with .npz')
@@ -301,8 +306,12 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
         agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
                  'control_rate': float(a.rate), 'rate_check': a.rate_check, 'state_timeout': float(a.state_timeout),
                  'parity_batch': not a.no_parity_batch, 'use_sim_time': True,
-                 'policy_runtime': a.policy_runtime}
+                 'policy_runtime': a.policy_runtime, **link_parameters(a, plan.mode)}
+        agent['managed'] = bool(a.managed)
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
+        if a.managed:  # configures every agent, then activates them together, then exits 0
+            out['lifecycle_manager'] = python + [f'{PACKAGE}.nodes.lifecycle_manager', '--ros-args', '-p',
+                                                 f'robots:={plan.robots}', '-p', f'timeout:={float(a.startup_timeout)}']
         for i in range(plan.robots):
             out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
                                           '-p', f'id:={i}', '-p',
@@ -748,6 +757,9 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             rc = c.proc.returncode
             if c is rec and rc == 0:
                 continue  # saved after the simulator said done
+            if c.name == 'lifecycle_manager' and rc == 0:
+                _say('every agent configured, then activated together')
+                continue
             if c is sim and rc == 0:
                 _say('the simulator has finished')
                 end = time.monotonic() + 15.0

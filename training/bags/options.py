@@ -34,7 +34,7 @@ class ImportOptions:
     smooth_window: int = 5                      # odd, in output samples
     smooth_order: int = 2                       # savgol polynomial order
     use_twist: bool = False                     # velocity (flock2d) / heading (boids3d) from Odometry twist
-    twist_frame: str = "world"                  # world | body (rotate twist by the pose orientation)
+    twist_frame: str = "body"                   # body (REP 105: rotate twist by the pose orientation) | world
     use_orientation: bool = False               # boids3d heading from the pose orientation (+x axis)
     heading_diff: str = "backward"              # boids3d: backward | central differences
     min_speed: float = 1e-3                     # boids3d: slower samples take the nearest valid heading
