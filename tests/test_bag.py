@@ -270,7 +270,7 @@ def test_project_bags_read_back_by_rosbags_message_for_message_with_their_qos(tm
                 assert log_ns == stamp_to_ns(msg.header.stamp) == stamps[t, i]
                 want = odometry_message("boids3d", states[t, i], int(stamps[t, i]), rid, velocity=vel[t, i])
                 assert msg.header.frame_id == want["header"]["frame_id"] == "world"
-                assert msg.child_frame_id == want["child_frame_id"] == f"robot_{rid}"
+                assert msg.child_frame_id == want["child_frame_id"] == f"robot_{rid}/base_link"
                 for c in "xyz":
                     assert getattr(msg.pose.pose.position, c) == want["pose"]["pose"]["position"][c]
                     assert getattr(msg.twist.twist.linear, c) == want["twist"]["twist"]["linear"][c]
