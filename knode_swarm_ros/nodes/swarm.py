@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from . import swarm_hosting as hosting
 from .common import (EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, MODES,
                      ConfigError)
 
@@ -100,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                    'temporary folder, removed after a successful run unless --keep-logs)')
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
+    hosting.add_arguments(p)
     return p
 
 
@@ -121,6 +123,7 @@ class Plan:
     domain_id: int
     args: argparse.Namespace
     policy_meta: Dict = field(default_factory=dict)
+    agents_per_process: int = 1
 
 
 def plan_run(args: argparse.Namespace) -> Plan:
@@ -180,6 +183,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
         robots = n
         args.init = f'{Path(path).resolve()}:{traj}'
     robots = robots or 10
+    per_process = hosting.resolve_agents_per_process(args.agents_per_process, robots)
     if args.variant:
         from ..core import groundtruth
         if args.variant not in groundtruth.presets(scenario):
@@ -195,7 +199,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
     else:
         run_dir, temporary = Path(tempfile.mkdtemp(prefix='knode_swarm_')), True
     return Plan(scenario, robots, args.steps, args.mode, dt, d_cr, policy_path, record, figure, run_dir,
-                temporary, domain, args, meta)
+                temporary, domain, args, meta, per_process)
 
 
 # --- parameter files -------------------------------------------------------------------
@@ -234,10 +238,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
                  'control_rate': float(a.rate), 'state_timeout': float(a.state_timeout),
                  'parity_batch': not a.no_parity_batch, 'use_sim_time': True}
         params = str(_params_file(plan.run_dir / 'agent.yaml', agent))
-        for i in range(plan.robots):
-            out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
-                                          '-p', f'id:={i}', '-p',
-                                          f'report:={_scalar(str(plan.run_dir / f"agent_{i}.json"))}']
+        out.update(hosting.agent_commands(plan.robots, plan.agents_per_process, python, PACKAGE, params,
+                                          plan.run_dir))
     return out
 
 
@@ -556,13 +558,14 @@ def run(plan: Plan) -> int:
                 _say(f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
                      f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})')
             for name, cmd in commands.items():
-                echo = 'none' if a.quiet else 'problems' if name.startswith('agent_') else 'all'
+                echo = 'none' if a.quiet else 'problems' if hosting.is_agent_process(name) else 'all'
                 children.add(start_child(name, cmd, env, plan.run_dir, echo))
             pids = {name: c.pid for name, c in children.items.items()}
             (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
-            agents = [n for n in pids if n.startswith('agent_')]
+            agents = [n for n in pids if hosting.is_agent_process(n)]
             _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
-                 + (f', {len(agents)} agents (pids {pids[agents[0]]}..{pids[agents[-1]]})' if agents else '')
+                 + (f', {len(agents)} agent processes for {plan.robots} robots (pids {pids[agents[0]]}..'
+                    f'{pids[agents[-1]]})' if agents else '')
                  + ': waiting until every agent has heard every robot')
             code = _supervise(plan, children, lost_agents, t0)
         except _Interrupted:
@@ -619,17 +622,20 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             why = c.how_it_ended()
             last = [line for line in c.tail if line.strip()][-3:]
             detail = (' -- last output: ' + ' | '.join(last)) if last else ''
-            if c.name.startswith('agent_'):
+            if hosting.is_agent_process(c.name):
+                held = hosting.robots_of(c.name)
                 _say(f'{c.name} (pid {c.pid}) {why}{detail}')
-                lost_agents.append(f'{c.name} (pid {c.pid}) {why}')
+                lost_agents.append(f'{c.name} (pid {c.pid}) {why}'
+                                   + (f', hosting robots {held}' if c.name.startswith('agents_') else ''))
                 if rc == EXIT_CONFIG:
                     _say('an agent refused its configuration: stopping the run')
                     return EXIT_CONFIG
                 if a.on_agent_exit == 'stop':
                     _say('--on-agent-exit stop: stopping the run')
                     return EXIT_FAILURE
-                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot '
-                     f'{c.name.split("_")[1]} at its last command')
+                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot'
+                     f'{"s" if len(held) > 1 else ""} {", ".join(map(str, held))} at '
+                     f'{"their" if len(held) > 1 else "its"} last command')
             else:
                 _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
                 return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE
