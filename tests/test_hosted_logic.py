@@ -139,3 +139,19 @@ def test_ids_as_a_list_or_a_range():
 def test_a_hosted_id_outside_the_swarm_is_refused(policies):
     with pytest.raises(ConfigError, match=r"'ids'.*\[12\]"):
         HostedAgents([1, 12], AgentConfig(0, list(range(10)), 'lockstep'), policies['flock2d'])
+
+
+def test_the_launcher_splits_robots_over_hosting_processes():
+    from knode_swarm_ros.nodes import swarm_hosting as hosting
+    assert hosting.resolve_agents_per_process(0, 10, cores=2) == 1       # small swarms: one process per robot
+    assert hosting.resolve_agents_per_process(0, 100, cores=2) == 50     # 2 processes on 2 cores
+    assert hosting.resolve_agents_per_process(0, 200, cores=16) == 25    # at most 8 processes
+    assert hosting.resolve_agents_per_process(4, 3) == 3
+    with pytest.raises(ConfigError, match='--agents-per-process'):
+        hosting.resolve_agents_per_process(-1, 10)
+    assert hosting.split(range(11), 4) == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10]]
+    cmds = hosting.agent_commands(11, 4, ['py', '-m'], 'pkg', 'agent.yaml', __import__('pathlib').Path('/l'))
+    assert list(cmds) == ['agents_0_3', 'agents_4_7', 'agents_8_10']
+    assert cmds['agents_8_10'][:3] == ['py', '-m', 'pkg.nodes.agents'] and 'ids:=8..10' in cmds['agents_8_10']
+    assert hosting.robots_of('agents_8_10') == [8, 9, 10] and hosting.robots_of('agent_3') == [3]
+    assert hosting.is_agent_process('agent_3') and not hosting.is_agent_process('recorder')

@@ -1,0 +1,68 @@
+"""Hosted agents through the real processes: ``swarm --agents-per-process K``.
+
+* lockstep with 11 robots over 3 ``agents`` processes (4 + 4 + 3) equals core.rollout from the
+  recorded initial state bit for bit, with one batched policy call per step and process;
+* a hosting process killed mid-run is reported by the launcher with the ids of the robots it
+  held (exit status 3); the simulator holds those robots and the other processes go on to the end.
+"""
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+
+from knode_swarm_ros.core import load_policy, load_trajectories  # noqa: E402
+from knode_swarm_ros.core.rollout import rollout  # noqa: E402
+from test_ros_swarm import Launcher, _assert_no_strays, _pids, _run  # noqa: E402  (the launcher helpers)
+
+pytestmark = pytest.mark.ros
+
+
+def test_lockstep_over_three_hosting_processes_equals_the_offline_rollout(tmp_path, untrained_policies):
+    record = tmp_path / 'hosted.npz'
+    steps = 200
+    rc, out = _run(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 11, '--agents-per-process', 4,
+                   '--steps', steps, '--seed', 5, '--record', record)
+    assert rc == 0, out
+    assert '3 agent processes for 11 robots' in out
+    data = load_trajectories(record)
+    states = data.states[0]
+    assert states.shape == (steps + 1, 11, 4) and data.meta['incomplete_frames'] == 0
+    policy = load_policy(untrained_policies['flock2d'])
+    ref = rollout(policy, states[0], steps, 'flock2d', policy.d_cr, policy.k, policy.tau, policy.dt)
+    assert np.array_equal(ref, states), f'max state difference {np.abs(ref - states).max()}'
+    for name, hosted in (('agents_0_3', 4), ('agents_4_7', 4), ('agents_8_10', 3)):
+        report = json.loads((tmp_path / 'logs' / f'{name}.json').read_text())
+        assert len(report['robots']) == hosted
+        assert all(r['answered'] == steps for r in report['robots'].values())
+        # one batched call per step (the initial state, published until all are ready, may add some)
+        assert report['evaluated'] == hosted * report['policy_calls']
+    _assert_no_strays(tmp_path)
+
+
+def test_a_killed_hosting_process_is_reported_with_its_robots_and_the_others_go_on(tmp_path, untrained_policies):
+    record = tmp_path / 'kill.npz'
+    steps = 400
+    run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 9, '--agents-per-process', 3,
+                   '--steps', steps, '--seed', 1, '--lockstep-timeout', 1.0, '--record', record)
+    assert run.wait_for('ready after'), run.output
+    victim = _pids(tmp_path)['agents_3_5']
+    os.kill(victim, signal.SIGKILL)
+    rc = run.finish()
+    out = run.output
+    assert rc == 3, out
+    assert f'agents_3_5 (pid {victim}) killed by SIGKILL' in out
+    assert 'the simulator holds robots 3, 4, 5 at their last command' in out
+    assert f'agents_3_5 (pid {victim}) killed by SIGKILL, hosting robots [3, 4, 5]' in out
+    report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
+    assert report['lost'] == [3, 4, 5] and report['steps_run'] == steps
+    for name in ('agents_0_2', 'agents_6_8'):
+        hosted = json.loads((tmp_path / 'logs' / f'{name}.json').read_text())
+        assert all(r['answered'] == steps for r in hosted['robots'].values())
+    assert not (tmp_path / 'logs' / 'agents_3_5.json').exists()
+    data = load_trajectories(record)
+    assert data.states.shape[1] == steps + 1 and data.meta['incomplete_frames'] == 0
+    _assert_no_strays(tmp_path)
