@@ -173,16 +173,18 @@ class AgentLogic:
 
     # --- input ---------------------------------------------------------------------
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
-                wall: float = 0.0) -> str:
+                wall: float = 0.0, verdict: Any = '') -> str:
         """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
         ``duplicate`` or the drop reason (see :data:`DROP_REASONS`).
 
         ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
-        ``wall`` a monotonic time in seconds (lockstep waiting).
+        ``wall`` a monotonic time in seconds (lockstep waiting). ``verdict``: the result of
+        :meth:`check` on these arguments when the caller has it already (a hosting process checks
+        a message once for all its robots, whose settings are the same).
         """
         c = self.counters
         c['received'] += 1
-        reason = self._check(robot, stamp_ns, z, now_ns)
+        reason = self.check(robot, stamp_ns, z, now_ns) if verdict == '' else verdict
         if reason is not None:
             c[reason] += 1
             self.last_drop = (reason, -1 if robot is None else int(robot), int(stamp_ns))
@@ -220,7 +222,8 @@ class AgentLogic:
         current = lock.pending if lock.pending is not None else lock.answered
         return -1 if current is None else current
 
-    def _check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
+    def check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
+        """The drop reason of a state (None: acceptable), before the duplicate check."""
         if robot is None or int(robot) not in self.index:
             return 'unknown_id'
         z = np.asarray(z)

@@ -98,7 +98,7 @@ class HostedAgents:
         self.hosted: List[int] = hosted
         self.logics: Dict[int, AgentLogic] = {rid: AgentLogic(replace(config, robot_id=rid), policy)
                                               for rid in hosted}
-        first = self.logics[hosted[0]]
+        first = self._first = self.logics[hosted[0]]
         self.spec, self.ids, self.index = first.spec, first.ids, first.index
         self.hold_s = float(hold_s)
         self._held: Dict[int, Request] = {}  # lockstep requests waiting for the rest of the step
@@ -111,8 +111,10 @@ class HostedAgents:
                 wall: float = 0.0) -> str:
         """Give the state to every hosted robot's logic (see :meth:`AgentLogic.receive`);
         returns the first hosted robot's outcome (they apply the same rules to the same input)."""
-        z = np.asarray(z, dtype=np.float64)
-        outcomes = [logic.receive(robot, stamp_ns, z, now_ns, wall) for logic in self.logics.values()]
+        verdict = self._first.check(robot, stamp_ns, z, now_ns)  # the same rules for all: check once
+        if verdict is None:
+            z = np.asarray(z, dtype=np.float64)
+        outcomes = [logic.receive(robot, stamp_ns, z, now_ns, wall, verdict) for logic in self.logics.values()]
         return outcomes[0]
 
     def malformed(self) -> str:
