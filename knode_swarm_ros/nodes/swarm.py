@@ -535,7 +535,7 @@ def run(plan: Plan) -> int:
     """Start, supervise and stop the processes of ``plan``; returns the exit status."""
     a = plan.args
     env = child_environment(plan.domain_id)
-    commands = node_commands(plan)
+    commands, env = hosting.place(node_commands(plan), env, a.netns)
     shm_before = shm_snapshot()
     children = Children()
     stop_reason = {'signal': None}

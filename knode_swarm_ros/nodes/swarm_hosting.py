@@ -6,6 +6,11 @@ one real robots use); K > 1 starts ``agents`` processes hosting K consecutive ro
 swarms fit this machine: one process per robot up to :data:`LONE_UP_TO` robots, beyond that
 the robots split evenly over ``min(cores, MAX_PROCESSES)`` processes (at least 2). An agent
 process holds about 330 MB (torch), so 100 robots need 2 to 8 processes, not 100.
+
+``--netns NS0,NS1,...`` (tests and benchmarks of several hosts on one machine, see
+:mod:`.netns`): the simulator and the recorder run in NS0, the agent processes round-robin in
+all of them, with DDS discovery over the subnet and the UDP transport only (no shared memory
+across "hosts"), instead of localhost-only discovery.
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ from typing import Dict, List, Optional, Sequence
 
 from .common import ConfigError
 
-__all__ = ['add_arguments', 'resolve_agents_per_process', 'split', 'agent_commands', 'robots_of',
+__all__ = ['add_arguments', 'place', 'resolve_agents_per_process', 'split', 'agent_commands', 'robots_of',
            'is_agent_process', 'LONE_UP_TO', 'MAX_PROCESSES']
 
 LONE_UP_TO = 10
@@ -31,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f'robots whose agents share one process (1: one agent process per robot; 0, the '
                              f'default: 1 up to {LONE_UP_TO} robots, else the robots split over min(cores, '
                              f'{MAX_PROCESSES}) processes)')
+    parser.add_argument('--netns', metavar='NS0,NS1,..', help='run the nodes in these network namespaces (as '
+                        'root; the simulator and the recorder in the first, the agent processes round-robin), with '
+                        'subnet discovery over UDP: a multi-host swarm on one machine (docs/ros.md)')
 
 
 def resolve_agents_per_process(requested: int, robots: int, cores: Optional[int] = None) -> int:
@@ -82,3 +90,22 @@ def robots_of(name: str) -> List[int]:
     if m:
         return list(range(int(m.group(1)), int(m.group(2)) + 1))
     return [int(name.split('_')[1])]
+
+
+def place(commands: Dict[str, List[str]], env: Dict[str, str], netns: Optional[str]):
+    """``(commands, env)`` with the processes spread over the namespaces of ``--netns`` (as is
+    when None): discovery over the subnet, UDP only (the namespaces share /dev/shm, and a
+    shared-memory transport would bypass the network under test)."""
+    if not netns:
+        return commands, env
+    from .netns import wrap
+    spaces = [n.strip() for n in netns.split(',') if n.strip()]
+    out, agents = {}, 0
+    for name, cmd in commands.items():
+        if is_agent_process(name):
+            out[name] = wrap(spaces[agents % len(spaces)], cmd)
+            agents += 1
+        else:
+            out[name] = wrap(spaces[0], cmd)
+    env = dict(env, ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET', FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
+    return out, env
