@@ -19,6 +19,10 @@ Figures, each against a baseline of the same run:
   runs only up to ``--lone-max`` robots (an agent process holds about 330 MB);
 * realtime: hosted at 20 Hz: missed commands (1 - commands the simulator received / robots x
   state publications), p50/p99 latency, PSS;
+* multihost (root): three network namespaces on a bridge (:mod:`knode_swarm_ros.nodes.netns`),
+  simulator and recorder in the first, hosting agent processes spread over the three, subnet
+  discovery over UDP: lockstep steps/s and parity with core.rollout, realtime misses and latency,
+  against the same runs on one host with localhost discovery;
 * quality: the learnt flock2d policy through ROS (hosted, lockstep) vs the offline
   :func:`core.rollout` from the recorded initial state (max difference; 0 = bit for bit) and vs
   the ground truth (Tanner) from the same state: avd/amd at the end and over the last 10 %.
@@ -180,10 +184,52 @@ def quality(record: Path, policy_path: str) -> dict:
             'ground_truth': metrics(gt)}
 
 
+# --- multihost --------------------------------------------------------------------------------
+def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
+    from knode_swarm_ros.nodes import netns
+    from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
+    out = {}
+    print(f'\n## three hosts (network namespaces on a bridge, subnet discovery, UDP) vs one host (localhost)')
+    print(f'{"robots":>6} {"where":>6} {"mode":>9} {"steps/s":>8} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} '
+          f'{"parity":>7} rc', flush=True)
+    try:
+        with netns.virtual_hosts(3) as hosts:
+            spaces = ','.join(h.name for h in hosts)
+            for n in counts:
+                k = max(1, -(-n // 3))  # three agent processes, one per host
+                for where in ('1 host', '3 hosts'):
+                    for mode, steps in (('lockstep', a.steps), ('realtime', int(round(a.seconds / 0.01)))):
+                        tag = f'multihost_{n}_{where[0]}_{mode}'
+                        args = ['--policy', policy, '--robots', n, '--steps', steps, '--mode', mode, '--rate', 20,
+                                '--agents-per-process', k, '--startup-timeout', 900, '--record', tmp / f'{tag}.npz']
+                        if where == '3 hosts':
+                            args += ['--netns', spaces]
+                        r = run_swarm(args, tmp / tag, a.timeout)
+                        rep = r['report']
+                        lat = rep.get('latency_ms') or {}
+                        parity = missed = None
+                        if mode == 'lockstep' and r['rc'] == 0:
+                            parity = quality(tmp / f'{tag}.npz', policy)['bit_for_bit']
+                        if mode == 'realtime':
+                            c = rep.get('counters', {})
+                            expected = rep.get('frames_published', 0) * n
+                            got = sum(c.get(key, 0) for key in ('accepted', 'stale', 'future', 'rejoined'))
+                            missed = 100.0 * max(0, expected - got) / expected if expected else None
+                        out[tag] = {'report': rep, 'parity': parity, 'missed_pct': missed, 'rc': r['rc']}
+                        print(f'{n:6d} {where:>6} {mode:>9} {_fmt(rep.get("steps_per_s"))} {_fmt(missed, "9.2f")} '
+                              f'{_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} {str(parity):>7} {r["rc"]}',
+                              flush=True)
+                        if r['rc'] != 0:
+                            print(r.get('output', ''))
+    except netns.NetnsUnavailable as exc:
+        print(f'not run: this machine refuses to create network namespaces: {exc}')
+    return out
+
+
 # --- main ------------------------------------------------------------------------------------
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    p.add_argument('--only', choices=('tick', 'lockstep', 'realtime', 'quality'), action='append')
+    p.add_argument('--only', choices=('tick', 'lockstep', 'realtime', 'quality', 'multihost'), action='append')
     p.add_argument('--robots', default='10,20,50,100,200', help='robot counts, comma-separated')
     p.add_argument('--steps', type=int, default=2000, help='lockstep / quality steps (default 2000)')
     p.add_argument('--seconds', type=float, default=60.0, help='realtime: simulated seconds (default 60)')
@@ -266,6 +312,8 @@ def main(argv=None) -> int:
             results[f'realtime_{n}'] = {'report': rep, 'pss_mb': r['pss_mb'], 'missed_pct': missed}
             print(f'{n:6d} {_fmt(missed, "9.2f")} {_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} '
                   f'{_fmt(r["pss_mb"], "8.0f")} {r["rc"]}  counters {json.dumps(c)}', flush=True)
+    if 'multihost' in only:
+        results['multihost'] = bench_multihost(policy, counts, a, tmp)
     if 'quality' in only:
         for n in counts:
             record = tmp / f'lockstep_{n}_hosted.npz'
