@@ -322,6 +322,12 @@ def main(argv=None) -> int:
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
                                '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900,
                                '--record', record], tmp / f'quality_{n}', a.timeout)
+                row = _row(r)
+                results[f'quality_run_{n}'] = row
+                print(f'\n## lockstep run for the quality figures: {n} robots, {a.steps} steps, hosted: '
+                      f'{_fmt(row["steps_per_s"], ".1f")} steps/s after {_fmt(row["startup_s"], ".1f")} s of startup, '
+                      f'latency p50 {_fmt(row["p50"], ".2f")} / p99 {_fmt(row["p99"], ".2f")} ms, PSS of all processes '
+                      f'{_fmt(row["pss_mb"], ".0f")} MB, wall {row["wall_s"]:.0f} s, rc {r["rc"]}', flush=True)
                 if r['rc'] != 0:
                     print(r.get('output', ''))
                     continue

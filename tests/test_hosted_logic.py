@@ -155,3 +155,6 @@ def test_the_launcher_splits_robots_over_hosting_processes():
     assert cmds['agents_8_10'][:3] == ['py', '-m', 'pkg.nodes.agents'] and 'ids:=8..10' in cmds['agents_8_10']
     assert hosting.robots_of('agents_8_10') == [8, 9, 10] and hosting.robots_of('agent_3') == [3]
     assert hosting.is_agent_process('agent_3') and not hosting.is_agent_process('recorder')
+    with pytest.raises(ConfigError, match='--netns: no network namespace nosuchns_i12'):
+        hosting.check_netns('nosuchns_i12')
+    hosting.check_netns(None)

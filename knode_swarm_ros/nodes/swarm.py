@@ -184,6 +184,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
         args.init = f'{Path(path).resolve()}:{traj}'
     robots = robots or 10
     per_process = hosting.resolve_agents_per_process(args.agents_per_process, robots)
+    hosting.check_netns(args.netns)
     if args.variant:
         from ..core import groundtruth
         if args.variant not in groundtruth.presets(scenario):

@@ -22,7 +22,7 @@ from typing import Dict, List, Optional, Sequence
 
 from .common import ConfigError
 
-__all__ = ['add_arguments', 'place', 'resolve_agents_per_process', 'split', 'agent_commands', 'robots_of',
+__all__ = ['add_arguments', 'check_netns', 'place', 'resolve_agents_per_process', 'split', 'agent_commands', 'robots_of',
            'is_agent_process', 'LONE_UP_TO', 'MAX_PROCESSES']
 
 LONE_UP_TO = 10
@@ -90,6 +90,18 @@ def robots_of(name: str) -> List[int]:
     if m:
         return list(range(int(m.group(1)), int(m.group(2)) + 1))
     return [int(name.split('_')[1])]
+
+
+def check_netns(netns: Optional[str]) -> None:
+    """Raise :class:`ConfigError` unless every namespace of ``--netns`` exists (``ip netns add``)."""
+    if netns is None:
+        return
+    spaces = [n.strip() for n in netns.split(',') if n.strip()]
+    if not spaces:
+        raise ConfigError('--netns: no namespace given (NS0,NS1,...)')
+    missing = [n for n in spaces if not os.path.exists(f'/run/netns/{n}')]
+    if missing:
+        raise ConfigError(f'--netns: no network namespace {", ".join(missing)} (see `ip netns list`)')
 
 
 def place(commands: Dict[str, List[str]], env: Dict[str, str], netns: Optional[str]):
