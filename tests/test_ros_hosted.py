@@ -66,3 +66,38 @@ def test_a_killed_hosting_process_is_reported_with_its_robots_and_the_others_go_
     data = load_trajectories(record)
     assert data.states.shape[1] == steps + 1 and data.meta['incomplete_frames'] == 0
     _assert_no_strays(tmp_path)
+
+
+def _agents(tmp_path, *params):
+    import subprocess
+    import sys
+    cmd = [sys.executable, '-m', 'knode_swarm_ros.nodes.agents', '--ros-args']
+    for p in params:
+        cmd += ['-p', p]
+    return subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+@pytest.mark.parametrize('ids, words', [('ids:=5..2', "'ids' = '5..2': the range ends before it starts"),
+                                        ('ids:=[1,30]', "robot(s) [30] are not among the swarm's robot ids 0..9"),
+                                        ('robots:=10', "parameter 'ids' is required")])
+def test_the_agents_executable_refuses_bad_ids(tmp_path, ros_domain_id, ids, words):
+    proc = _agents(tmp_path, ids, 'robots:=10')
+    out = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 2 and words in out, out
+
+
+def test_the_agents_executable_stops_on_sigint(tmp_path, ros_domain_id, untrained_policies):
+    # (its report at exit is checked by the launcher tests above, which stop it with SIGINT)
+    import time
+    proc = _agents(tmp_path, 'ids:=[2, 5]', 'robots:=6', f'policy:={untrained_policies["flock2d"]}', 'mode:=lockstep')
+    lines = []
+    deadline = time.monotonic() + 120
+    for line in proc.stdout:  # until the node is up (its last line at construction)
+        lines.append(line)
+        if 'robots [2, 5] (2 hosted) of 6' in line or time.monotonic() > deadline:
+            break
+    assert any('robots [2, 5] (2 hosted) of 6' in line for line in lines), ''.join(lines)
+    assert '[agents_2_5]' in lines[-1]
+    proc.send_signal(signal.SIGINT)
+    rest = proc.communicate(timeout=30)[0]
+    assert proc.returncode == 0, ''.join(lines) + rest

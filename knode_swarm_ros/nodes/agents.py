@@ -119,10 +119,11 @@ class AgentsNode(Node):
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(status_period, self._publish_status, clock=self._wall)
+        self._publish_status()
+        # last: this line says the node is up (tests wait for it)
         self.get_logger().info(
             f'robots {format_ids(hosted)} ({len(hosted)} hosted) of {len(ids)} ({policy.scenario}, {mode}): '
             f'policy {policy.path} (k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g})')
-        self._publish_status()
 
     def _warm_up(self, policy) -> None:
         import numpy as np
