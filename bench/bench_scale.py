@@ -148,7 +148,8 @@ def _row(r: dict) -> dict:
     rep = r['report']
     lat = rep.get('latency_ms') or {}
     return {'steps_per_s': rep.get('steps_per_s'), 'startup_s': rep.get('startup_s'), 'p50': lat.get('p50'),
-            'p99': lat.get('p99'), 'pss_mb': r['pss_mb'], 'rc': r['rc'], 'wall_s': r['wall_s']}
+            'p99': lat.get('p99'), 'pss_mb': r['pss_mb'], 'rc': r['rc'], 'wall_s': r['wall_s'],
+            'lost': rep.get('lost')}
 
 
 def _fmt(x, spec='8.1f'):
@@ -201,7 +202,7 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
                     for mode, steps in (('lockstep', a.steps), ('realtime', int(round(a.seconds / 0.01)))):
                         tag = f'multihost_{n}_{where[0]}_{mode}'
                         args = ['--policy', policy, '--robots', n, '--steps', steps, '--mode', mode, '--rate', 20,
-                                '--agents-per-process', k, '--startup-timeout', 900, '--record', tmp / f'{tag}.npz']
+                                '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, '--record', tmp / f'{tag}.npz']
                         if where == '3 hosts':
                             args += ['--netns', spaces]
                         r = run_swarm(args, tmp / tag, a.timeout)
@@ -237,6 +238,9 @@ def main(argv=None) -> int:
     p.add_argument('--lone-max', type=int, default=20, help='largest swarm run with one process per robot')
     p.add_argument('--agents-per-process', type=int, default=0, help='hosted layout: K (0: the default split)')
     p.add_argument('--timeout', type=float, default=1800.0, help='wall seconds per run')
+    p.add_argument('--lockstep-timeout', type=float, default=600.0,
+                   help="the simulator's wait for a late agent before holding its robot (the launcher's default, 5 s, "
+                   'drops agents that a loaded machine delays; a run with held robots is not a valid figure)')
     p.add_argument('--policy')
     p.add_argument('--out', help='results JSON (default: in the temporary folder)')
     a = p.parse_args(argv)
@@ -277,12 +281,13 @@ def main(argv=None) -> int:
                 if layout == 'hosted' and k == 1:
                     k = max(2, -(-n // 2))  # the default is one process per robot here: host anyway
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', k, '--startup-timeout', 900,
+                               '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
                                '--record', tmp / f'lockstep_{n}_{layout}.npz'], tmp / f'lockstep_{n}_{layout}', a.timeout)
                 rows[layout] = row = _row(r)
                 procs = -(-n // k)
                 print(f'{n:6d} {layout:>7} {procs:5d} {_fmt(row["steps_per_s"])} {_fmt(row["startup_s"], "9.1f")} '
-                      f'{_fmt(row["p50"], "8.2f")} {_fmt(row["p99"], "8.2f")} {_fmt(row["pss_mb"], "8.0f")} {row["rc"]}',
+                      f'{_fmt(row["p50"], "8.2f")} {_fmt(row["p99"], "8.2f")} {_fmt(row["pss_mb"], "8.0f")} {row["rc"]}'
+                      + (f'  INVALID: robots held {row["lost"]}' if row['lost'] else ''),
                       flush=True)
                 if r['rc'] != 0:
                     print(r.get('output', ''))
@@ -300,7 +305,7 @@ def main(argv=None) -> int:
             k = resolve(a.agents_per_process, n)
             steps = int(round(a.seconds / 0.01))
             r = run_swarm(['--policy', policy, '--robots', n, '--steps', steps, '--mode', 'realtime', '--rate', 20,
-                           '--agents-per-process', k, '--startup-timeout', 900,
+                           '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
                            '--record', tmp / f'realtime_{n}.npz'], tmp / f'realtime_{n}', a.timeout)
             rep = r['report']
             c = rep.get('counters', {})
@@ -320,14 +325,15 @@ def main(argv=None) -> int:
             if not record.exists():
                 from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900,
+                               '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
                                '--record', record], tmp / f'quality_{n}', a.timeout)
                 row = _row(r)
                 results[f'quality_run_{n}'] = row
                 print(f'\n## lockstep run for the quality figures: {n} robots, {a.steps} steps, hosted: '
                       f'{_fmt(row["steps_per_s"], ".1f")} steps/s after {_fmt(row["startup_s"], ".1f")} s of startup, '
                       f'latency p50 {_fmt(row["p50"], ".2f")} / p99 {_fmt(row["p99"], ".2f")} ms, PSS of all processes '
-                      f'{_fmt(row["pss_mb"], ".0f")} MB, wall {row["wall_s"]:.0f} s, rc {r["rc"]}', flush=True)
+                      f'{_fmt(row["pss_mb"], ".0f")} MB, wall {row["wall_s"]:.0f} s, rc {r["rc"]}, robots held: '
+                      f'{row["lost"]}', flush=True)
                 if r['rc'] != 0:
                     print(r.get('output', ''))
                     continue
