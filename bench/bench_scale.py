@@ -112,10 +112,15 @@ def pss_kb(pid: int) -> int:
     return 0
 
 
+DOMAIN_ID = None
+
+
 def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
     """The launcher with ``args``; PSS of all its processes sampled twice while running."""
     cmd = [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(log_dir), '--no-figure',
            '--quiet', *map(str, args)]
+    if DOMAIN_ID is not None:  # concurrent benchmarks on one machine must not share a domain
+        cmd += ['--domain-id', str(DOMAIN_ID)]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     t0 = time.monotonic()
     out_path = log_dir.with_suffix('.out')
@@ -242,9 +247,12 @@ def main(argv=None) -> int:
     p.add_argument('--lockstep-timeout', type=float, default=600.0,
                    help="the simulator's wait for a late agent before holding its robot (the launcher's default, 5 s, "
                    'drops agents that a loaded machine delays; a run with held robots is not a valid figure)')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of every run (default: the launcher draws one)')
     p.add_argument('--policy')
     p.add_argument('--out', help='results JSON (default: in the temporary folder)')
     a = p.parse_args(argv)
+    global DOMAIN_ID
+    DOMAIN_ID = a.domain_id
     only = set(a.only or ('tick', 'lockstep', 'realtime', 'quality'))
     counts = [int(x) for x in a.robots.split(',') if x]
     from knode_swarm_ros.core.policy_io import shipped_policy_path
