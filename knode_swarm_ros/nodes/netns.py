@@ -13,7 +13,9 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import signal
 import subprocess
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator, List, Sequence
@@ -66,6 +68,8 @@ def virtual_hosts(n: int, tag: str = '', subnet_byte: int = 0) -> Iterator[List[
     hosts = [VirtualHost(f'knh{tag}_{i}', f'kv{tag}_{i}', f'10.213.{byte}.{i + 1}', subnet) for i in range(n)]
     names = [switch] + [h.name for h in hosts]
     atexit.register(remove, names)  # even if the caller dies between here and the finally below
+    # SIGTERM would end Python without the finally below or atexit: make it an exception meanwhile
+    old_term = _raise_on_sigterm()
     try:
         _ip('netns', 'add', switch)
         _ip('-n', switch, 'link', 'add', 'br0', 'type', 'bridge')
@@ -86,6 +90,22 @@ def virtual_hosts(n: int, tag: str = '', subnet_byte: int = 0) -> Iterator[List[
     finally:
         remove(names)
         atexit.unregister(remove)
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
+
+
+def _raise_on_sigterm():
+    """Turn SIGTERM into SystemExit (main thread only); returns the previous handler or None."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous not in (signal.SIG_DFL, None):
+        return None  # someone handles it already
+
+    def on_term(signum, _frame):
+        raise SystemExit(128 + signum)
+    signal.signal(signal.SIGTERM, on_term)
+    return previous
 
 
 def wrap(namespace: str, command: Sequence[str]) -> List[str]:
