@@ -159,7 +159,9 @@ def _row(r: dict) -> dict:
 
 
 def _fmt(x, spec='8.1f'):
-    return format(x, spec) if isinstance(x, (int, float)) and x is not None else format('-', spec[:-2] + 's')
+    if isinstance(x, (int, float)) and not isinstance(x, bool):
+        return format(x, spec)
+    return format('-', '>' + spec.split('.')[0])
 
 
 def _ratio(a, b):
