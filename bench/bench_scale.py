@@ -150,6 +150,13 @@ def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
     return result
 
 
+def _lockstep_wait(a) -> list:
+    """The agents' ``--state-timeout`` for lockstep runs: an agent gives up on a peer whose state
+    is not filed within it (wall seconds), and a hosting process that a loaded machine slows down
+    still has that state in its own queue; realtime runs keep the launcher's default."""
+    return ['--state-timeout', a.state_timeout]
+
+
 def _row(r: dict) -> dict:
     rep = r['report']
     lat = rep.get('latency_ms') or {}
@@ -210,7 +217,7 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
                     for mode, steps in (('lockstep', a.steps), ('realtime', int(round(a.seconds / 0.01)))):
                         tag = f'multihost_{n}_{where[0]}_{mode}'
                         args = ['--policy', policy, '--robots', n, '--steps', steps, '--mode', mode, '--rate', 20,
-                                '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, '--record', tmp / f'{tag}.npz']
+                                '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *(_lockstep_wait(a) if mode == 'lockstep' else []), '--record', tmp / f'{tag}.npz']
                         if where == '3 hosts':
                             args += ['--netns', spaces]
                         r = run_swarm(args, tmp / tag, a.timeout)
@@ -249,6 +256,8 @@ def main(argv=None) -> int:
     p.add_argument('--lockstep-timeout', type=float, default=600.0,
                    help="the simulator's wait for a late agent before holding its robot (the launcher's default, 5 s, "
                    'drops agents that a loaded machine delays; a run with held robots is not a valid figure)')
+    p.add_argument('--state-timeout', type=float, default=60.0,
+                   help="agents' state_timeout in lockstep runs (default 60 s: see _lockstep_wait)")
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of every run (default: the launcher draws one)')
     p.add_argument('--policy')
     p.add_argument('--out', help='results JSON (default: in the temporary folder)')
@@ -292,7 +301,7 @@ def main(argv=None) -> int:
                 if layout == 'hosted' and k == 1:
                     k = max(2, -(-n // 2))  # the default is one process per robot here: host anyway
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
+                               '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *_lockstep_wait(a),
                                '--record', tmp / f'lockstep_{n}_{layout}.npz'], tmp / f'lockstep_{n}_{layout}', a.timeout)
                 rows[layout] = row = _row(r)
                 procs = -(-n // k)
@@ -336,7 +345,7 @@ def main(argv=None) -> int:
             if not record.exists():
                 from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
+                               '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *_lockstep_wait(a),
                                '--record', record], tmp / f'quality_{n}', a.timeout)
                 row = _row(r)
                 results[f'quality_run_{n}'] = row
