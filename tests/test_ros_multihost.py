@@ -38,7 +38,8 @@ def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path
         record = tmp_path / 'multihost.npz'
         steps = 150
         run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 9, '--agents-per-process', 3,
-                       '--steps', steps, '--seed', 2, '--record', record,
+                       '--steps', steps, '--seed', 2, '--record', record, '--state-timeout', 120,
+                       '--lockstep-timeout', 120,
                        '--netns', ','.join(h.name for h in hosts))
         assert run.wait_for('ready after'), run.output
         # Every process really lives in its namespace: the agents in three different ones.
