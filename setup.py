@@ -61,6 +61,7 @@ setup(
     entry_points={
         'console_scripts': [
             'agent = knode_swarm_ros.nodes.agent:main',
+            'agents = knode_swarm_ros.nodes.agents:main',
             'simulator = knode_swarm_ros.nodes.simulator:main',
             'recorder = knode_swarm_ros.nodes.recorder:main',
             'swarm = knode_swarm_ros.nodes.swarm:main',

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = 'knode_swarm_ros'
-EXECUTABLES = ('agent', 'simulator', 'recorder', 'swarm')
+EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'swarm')
 REPO = Path(__file__).resolve().parents[1]
 
 # Tighten here once knode_swarm_ros/nodes/agent.py is the real node.

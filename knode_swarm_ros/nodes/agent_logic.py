@@ -34,6 +34,12 @@ shapes, and this makes a lockstep run equal :func:`knode_swarm_ros.core.rollout`
 (lockstep only: in real time there is no rollout to match, and a batch of 1 is cheaper).
 Commands are saturated per axis by :func:`knode_swarm_ros.core.saturation.saturate` at the
 policy's ``command_limit``, lowered (never raised) by the ``command_limit`` parameter.
+
+A process that hosts several robots (``agents``, :mod:`.hosted_logic`) runs one AgentLogic per
+robot and evaluates their policies together: ``lockstep_next`` / ``tick_next`` stop short of the
+policy call and hand back a :class:`Request` (Y_i, mask), and ``finish(request, u)`` applies
+the command exactly as ``lockstep_poll`` / ``tick`` do, which are those two steps with the
+policy called in between (:func:`.policy_call.evaluate_rows`).
 """
 from __future__ import annotations
 
@@ -48,8 +54,9 @@ from ..core.saturation import effective_limit, saturate, stop_command
 from ..core.scenarios import get_scenario
 from .common import MODES, ConfigError
 from .control_period import RATE_CHECKS, check_control_period
+from .policy_call import evaluate_rows
 
-__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'PolicyLike', 'DROP_REASONS']
+__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS']
 
 #: Reasons ``receive`` drops a state for (each has a counter).
 DROP_REASONS = ('malformed', 'unknown_id', 'bad_size', 'non_finite', 'too_old', 'too_future')
@@ -129,6 +136,17 @@ class Command:
 
 
 @dataclass
+class Request:
+    """A command waiting for its policy output: ``Y [k, d]`` and ``mask [k]`` of own step
+    ``step``, to be stamped ``stamp_ns`` (see :meth:`AgentLogic.finish`)."""
+
+    step: int
+    stamp_ns: int
+    Y: np.ndarray
+    mask: np.ndarray
+
+
+@dataclass
 class _Lockstep:
     first_step: Optional[int] = None
     pending: Optional[int] = None
@@ -178,16 +196,18 @@ class AgentLogic:
 
     # --- input ---------------------------------------------------------------------
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
-                wall: float = 0.0) -> str:
+                wall: float = 0.0, verdict: Any = '') -> str:
         """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
         ``duplicate`` or the drop reason (see :data:`DROP_REASONS`).
 
         ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
-        ``wall`` a monotonic time in seconds (lockstep waiting).
+        ``wall`` a monotonic time in seconds (lockstep waiting). ``verdict``: the result of
+        :meth:`check` on these arguments when the caller has it already (a hosting process checks
+        a message once for all its robots, whose settings are the same).
         """
         c = self.counters
         c['received'] += 1
-        reason = self._check(robot, stamp_ns, z, now_ns)
+        reason = self.check(robot, stamp_ns, z, now_ns) if verdict == '' else verdict
         if reason is not None:
             c[reason] += 1
             self.last_drop = (reason, -1 if robot is None else int(robot), int(stamp_ns))
@@ -225,7 +245,8 @@ class AgentLogic:
         current = lock.pending if lock.pending is not None else lock.answered
         return -1 if current is None else current
 
-    def _check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
+    def check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
+        """The drop reason of a state (None: acceptable), before the duplicate check."""
         if robot is None or int(robot) not in self.index:
             return 'unknown_id'
         z = np.asarray(z)
@@ -274,6 +295,11 @@ class AgentLogic:
         """The command for the pending own step once every live peer's needed state is here
         (or a re-send of the last one); None while waiting. Call after every ``receive`` and
         now and then (a timer) so that silent peers time out."""
+        return self._now(self.lockstep_next(wall))
+
+    def lockstep_next(self, wall: float):
+        """:meth:`lockstep_poll` short of the policy call: None, a re-sent :class:`Command`, or
+        the :class:`Request` of the pending step (then marked answered: call :meth:`finish`)."""
         lock = self._lock
         if lock.resend:
             lock.resend = False
@@ -306,14 +332,18 @@ class AgentLogic:
             self.events.append(f'step {s}: no state of step {need} from robot(s) {missing} within '
                                f'{self.config.state_timeout:g} s: left out until heard again')
         own = self.buffer.get(self.me, s)
-        command = self._compute(s, self.stamps.get((self.me, s), int(round(s * self.dt * 1e9))), own, rows)
+        request = self._request(s, self.stamps.get((self.me, s), int(round(s * self.dt * 1e9))), own, rows)
         lock.answered = s
         lock.pending = None
-        return command
+        return request
 
     # --- realtime ------------------------------------------------------------------
     def tick(self, now_ns: Optional[int]) -> Optional[Command]:
         """The command of a control tick at ``now_ns`` (None before the own state is heard)."""
+        return self._now(self.tick_next(now_ns))
+
+    def tick_next(self, now_ns: Optional[int]):
+        """:meth:`tick` short of the policy call: None, a stop :class:`Command` or a :class:`Request`."""
         latest = self.buffer.latest(self.me)
         if latest is None:
             return None
@@ -336,7 +366,7 @@ class AgentLogic:
             z = self.buffer.delayed(rid, s)
             if z is not None:
                 rows[rid] = z
-        return self._compute(s, own_ns, own, rows)
+        return self._request(s, own_ns, own, rows)
 
     def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
         """The stop command of a stale own state (see the module doc)."""
@@ -367,17 +397,33 @@ class AgentLogic:
         return neighbour_matrix_single(ids.index(self.me), own, z_delayed, self.spec.position_dim,
                                        self.d_cr, self.k)
 
+    @property
+    def parity_rows(self) -> bool:
+        """Evaluate in a batch shaped like the offline rollout's (one row per robot, this robot's
+        at its index): lockstep with ``parity_batch`` and more than one robot."""
+        return self.config.parity_batch and self.config.mode == 'lockstep' and len(self.ids) > 1
+
     def evaluate(self, Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """The policy's command ``[m]`` for one ``Y [k, d]``, ``mask [k]`` (before the agent's clip)."""
-        if self.config.parity_batch and self.config.mode == 'lockstep' and len(self.ids) > 1:
-            B, row = len(self.ids), self.index[self.me]
-            out = self.policy(np.repeat(Y[None], B, axis=0), np.repeat(mask[None], B, axis=0))
-            return np.asarray(out[row], dtype=np.float64)
-        return np.asarray(self.policy(Y[None], mask[None])[0], dtype=np.float64)
+        if self.parity_rows:
+            return evaluate_rows(self.policy, Y[None], mask[None], [self.index[self.me]], len(self.ids))[0]
+        return evaluate_rows(self.policy, Y[None], mask[None])[0]
 
-    def _compute(self, step: int, stamp: int, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Command:
+    def _request(self, step: int, stamp: int, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Request:
         Y, mask = self.neighbour_matrix(own, rows)
-        u = self.evaluate(Y, mask)
+        return Request(int(step), int(stamp), Y, mask)
+
+    def _now(self, item):
+        """A :class:`Request` evaluated alone and finished; anything else as it is."""
+        if isinstance(item, Request):
+            return self.finish(item, self.evaluate(item.Y, item.mask))
+        return item
+
+    def finish(self, request: Request, u: np.ndarray) -> Command:
+        """The command of ``request`` from the policy's output ``u [m]``: a non-finite output
+        becomes zero, then the per-axis clip; counted and remembered as the last command."""
+        step, stamp, mask = request.step, request.stamp_ns, request.mask
+        u = np.asarray(u, dtype=np.float64)
         if not np.all(np.isfinite(u)):
             self.counters['non_finite_command'] += 1
             self.events.append(f'step {step}: the policy returned {u.tolist()}: publishing zero')

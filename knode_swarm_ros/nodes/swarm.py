@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import fcntl
 import json
+import math
 import os
 import re
 import selectors
@@ -40,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from . import swarm_hosting as hosting
 from .agent_link import add_link_arguments, link_parameters
 from .common import (EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, MODES,
                      ConfigError)
@@ -115,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_link_arguments(p)
     p.add_argument('--managed', action='store_true', help='agents as managed (lifecycle) nodes: configure every '
                    'agent, then activate them together')
+    hosting.add_arguments(p)
     return p
 
 
@@ -137,6 +140,7 @@ class Plan:
     args: argparse.Namespace
     policy_meta: Dict = field(default_factory=dict)
     domain_claim: object = None  # held for the run (domains.DomainClaim) when the domain was drawn
+    agents_per_process: int = 1
 
 
 def _check_output_folder(option: str, given: str, folder: Path) -> None:
@@ -165,12 +169,13 @@ def available_memory_mb() -> Optional[float]:
     return None
 
 
-def _check_memory(robots: int) -> None:
+def _check_memory(robots: int, per_process: int = 1) -> None:
     """Refuse a swarm whose agent processes cannot fit in this machine's available memory."""
-    need = robots * AGENT_MB + 2 * NODE_MB
+    processes = math.ceil(robots / per_process)
+    need = processes * AGENT_MB + 2 * NODE_MB
     have = available_memory_mb()
     if have is not None and need > have:
-        raise ConfigError(f'--robots {robots}: {robots} agent processes need about {need / 1024:.1f} GB '
+        raise ConfigError(f'--robots {robots}: {processes} agent processes need about {need / 1024:.1f} GB '
                           f'({AGENT_MB} MB each, measured with the CPU build of torch) but this machine has '
                           f'{have / 1024:.1f} GB available; run fewer robots')
 
@@ -241,8 +246,15 @@ def plan_run(args: argparse.Namespace) -> Plan:
     robots = robots or 10
     if robots > MAX_ROBOTS:
         raise ConfigError(f'--init {args.init} has {robots} robots; the nodes take at most {MAX_ROBOTS}')
+    per_process = hosting.resolve_agents_per_process(args.agents_per_process, robots)
+    if args.managed and not args.ground_truth:
+        if args.agents_per_process > 1:
+            raise ConfigError('--managed runs one lifecycle agent process per robot; it cannot be combined with '
+                              f'--agents-per-process {args.agents_per_process}')
+        per_process = 1
+    hosting.check_netns(args.netns)
     if not args.ground_truth:
-        _check_memory(robots)
+        _check_memory(robots, per_process)
     if args.variant:
         from ..core import groundtruth
         if args.variant not in groundtruth.presets(scenario):
@@ -267,7 +279,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
     else:
         run_dir, temporary = Path(tempfile.mkdtemp(prefix='knode_swarm_')), True
     return Plan(scenario, robots, args.steps, args.mode, dt, d_cr, policy_path, record, figure, run_dir,
-                temporary, domain, args, meta, claim)
+                temporary, domain, args, meta, claim, per_process)
 
 
 # --- parameter files -------------------------------------------------------------------
@@ -312,10 +324,8 @@ def node_commands(plan: Plan) -> Dict[str, List[str]]:
         if a.managed:  # configures every agent, then activates them together, then exits 0
             out['lifecycle_manager'] = python + [f'{PACKAGE}.nodes.lifecycle_manager', '--ros-args', '-p',
                                                  f'robots:={plan.robots}', '-p', f'timeout:={float(a.startup_timeout)}']
-        for i in range(plan.robots):
-            out[f'agent_{i}'] = python + [f'{PACKAGE}.nodes.agent', '--ros-args', '--params-file', params,
-                                          '-p', f'id:={i}', '-p',
-                                          f'report:={_scalar(str(plan.run_dir / f"agent_{i}.json"))}']
+        out.update(hosting.agent_commands(plan.robots, plan.agents_per_process, python, PACKAGE, params,
+                                          plan.run_dir))
     return out
 
 
@@ -624,7 +634,7 @@ def run(plan: Plan) -> int:
     a = plan.args
     plan.record.parent.mkdir(parents=True, exist_ok=True)  # checked by plan_run (a fresh clone has no out/)
     env = child_environment(plan.domain_id)
-    commands = node_commands(plan)
+    commands, env = hosting.place(node_commands(plan), env, a.netns)
     shm_before = shm_snapshot()
     record_before = _file_identity(plan.record)
     children = Children()
@@ -659,9 +669,10 @@ def run(plan: Plan) -> int:
             if failed is not None:
                 code = failed
             else:
-                agents = [n for n in pids if n.startswith('agent_')]
+                agents = [n for n in pids if hosting.is_agent_process(n)]
                 _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
-                     + (f', {len(agents)} agents (pids {pids[agents[0]]}..{pids[agents[-1]]})' if agents else '')
+                     + (f', {len(agents)} agent processes for {plan.robots} robots (pids {pids[agents[0]]}..'
+                        f'{pids[agents[-1]]})' if agents else '')
                      + ': waiting until every agent has heard every robot')
                 code = _supervise(plan, children, lost_agents, t0)
         except _Interrupted:
@@ -719,10 +730,10 @@ def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, 
     start-up timeout would lose.) Returns an exit status when the first stage failed."""
     a = plan.args
     names = list(commands)
-    agents = [n for n in names if n.startswith('agent_')]
+    agents = [n for n in names if hosting.is_agent_process(n)]
     for stage in ([n for n in names if n not in agents], agents):
         for name in stage:
-            echo = 'none' if a.quiet else 'problems' if name.startswith('agent_') else 'all'
+            echo = 'none' if a.quiet else 'problems' if hosting.is_agent_process(name) else 'all'
             children.add(start_child(name, commands[name], env, plan.run_dir, echo))
         if stage is agents:
             break  # supervised with the rest of the run
@@ -772,17 +783,20 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             why = c.how_it_ended()
             last = [line for line in c.tail if line.strip()][-3:]
             detail = (' -- last output: ' + ' | '.join(last)) if last else ''
-            if c.name.startswith('agent_'):
+            if hosting.is_agent_process(c.name):
+                held = hosting.robots_of(c.name)
                 _say(f'{c.name} (pid {c.pid}) {why}{detail}')
-                lost_agents.append(f'{c.name} (pid {c.pid}) {why}')
+                lost_agents.append(f'{c.name} (pid {c.pid}) {why}'
+                                   + (f', hosting robots {held}' if c.name.startswith('agents_') else ''))
                 if rc == EXIT_CONFIG:
                     _say('an agent refused its configuration: stopping the run')
                     return EXIT_CONFIG
                 if a.on_agent_exit == 'stop':
                     _say('--on-agent-exit stop: stopping the run')
                     return EXIT_FAILURE
-                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot '
-                     f'{c.name.split("_")[1]} at its last command')
+                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot'
+                     f'{"s" if len(held) > 1 else ""} {", ".join(map(str, held))} at '
+                     f'{"their" if len(held) > 1 else "its"} last command')
             else:
                 _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
                 return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE

@@ -1,0 +1,160 @@
+"""Hosted agents (several robots in one process) without ROS: they equal lone agents.
+
+* the same message stream (shuffled per step, with a duplicate and a hostile state) gives every
+  hosted robot bit for bit the command its lone agent computes, in lockstep, with and without
+  delay; in realtime within float32 rounding (a batch of K rounds unlike a batch of 1);
+* any split of a swarm over hosting processes, stepped with the simulator's zoh_step, equals
+  core.rollout bit for bit, with one policy call per process and step;
+* ``ids`` as a list or a range; bad ids are refused with a message naming the parameter.
+"""
+import random
+
+import numpy as np
+import pytest
+
+from knode_swarm_ros.core import load_policy
+from knode_swarm_ros.core.rollout import rollout, zoh_step
+from knode_swarm_ros.core.scenarios import get_scenario
+from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
+from knode_swarm_ros.nodes.hosted_logic import HostedAgents, format_ids, parse_ids
+from knode_swarm_ros.nodes.simulator_logic import initial_state
+
+
+@pytest.fixture(scope='module')
+def policies(untrained_policies):
+    import torch
+    torch.set_num_threads(1)
+    return {name: load_policy(path) for name, path in untrained_policies.items()}
+
+
+def _frames(scenario, n, steps, seed):
+    z0, swarm = initial_state(scenario, n, seed=seed)
+    return [z0] + [swarm.step()[0] for _ in range(steps)]
+
+
+@pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
+def test_hosted_robots_equal_lone_agents_in_lockstep(policies, scenario):
+    policy = policies[scenario]
+    n, hosted = 7, [1, 4, 5]
+    ids = list(range(n))
+    frames = _frames(scenario, n, 40, seed=2)
+    lone = {rid: AgentLogic(AgentConfig(rid, ids, 'lockstep'), policy) for rid in hosted}
+    host = HostedAgents(hosted, AgentConfig(0, ids, 'lockstep'), policy)
+    rng = random.Random(5)
+    got_lone, got_host = {r: [] for r in hosted}, {r: [] for r in hosted}
+    for s, frame in enumerate(frames):
+        ns = stamp_ns(s, policy.dt)
+        order = list(range(n))
+        rng.shuffle(order)
+        messages = [(r, frame[r]) for r in order]
+        if s == 10:
+            messages.insert(2, (order[0], frame[order[0]]))         # a duplicate
+            messages.insert(3, (3, np.full(frame.shape[1], np.nan)))  # hostile: dropped and counted
+        for robot, z in messages:
+            for rid, logic in lone.items():
+                logic.receive(robot, ns, z)
+                cmd = logic.lockstep_poll(0.0)
+                if cmd is not None:
+                    got_lone[rid].append((cmd.step, cmd.stamp_ns, cmd.value))
+            host.receive(robot, ns, z)
+            for rid, cmd in host.lockstep_poll(0.0):
+                got_host[rid].append((cmd.step, cmd.stamp_ns, cmd.value))
+    for rid in hosted:
+        assert len(got_lone[rid]) == len(frames)
+        assert [c[:2] for c in got_host[rid]] == [c[:2] for c in got_lone[rid]]
+        assert np.array_equal(np.stack([c[2] for c in got_host[rid]]), np.stack([c[2] for c in got_lone[rid]]))
+        assert host.logics[rid].counters == lone[rid].counters
+    assert host.logics[1].counters['non_finite'] == 1 and host.logics[1].counters['duplicate'] >= 1
+    assert host.calls == len(frames)  # one batched call per step for all hosted robots
+
+
+def test_hosted_robots_equal_lone_agents_in_realtime(policies):
+    policy = policies['flock2d']
+    n, hosted = 6, [0, 2, 3, 5]
+    ids = list(range(n))
+    frames = _frames('flock2d', n, 20, seed=1)
+    lone = {rid: AgentLogic(AgentConfig(rid, ids, 'realtime'), policy) for rid in hosted}
+    host = HostedAgents(hosted, AgentConfig(0, ids, 'realtime'), policy)
+    for s, frame in enumerate(frames):
+        ns = stamp_ns(s, policy.dt)
+        for robot in range(n):
+            if (robot, s) == (4, 7):
+                continue  # lost: both must bridge it with the last state heard
+            for logic in lone.values():
+                logic.receive(robot, ns, frame[robot], ns)
+            host.receive(robot, ns, frame[robot], ns)
+        got = dict(host.tick(ns))
+        assert sorted(got) == hosted
+        for rid, logic in lone.items():
+            want = logic.tick(ns)
+            assert (got[rid].step, got[rid].stamp_ns, got[rid].neighbours) == (want.step, want.stamp_ns,
+                                                                                want.neighbours)
+            assert np.allclose(got[rid].value, want.value, rtol=1e-5, atol=1e-5)  # batch of 4 vs 1
+    assert host.calls == len(frames)
+
+
+@pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
+def test_any_split_over_processes_equals_the_offline_rollout_bit_for_bit(policies, scenario):
+    policy = policies[scenario]
+    spec = get_scenario(scenario)
+    n, steps = 10, 60
+    z0, _ = initial_state(scenario, n, seed=7)
+    ids = list(range(n))
+    hosts = [HostedAgents(part, AgentConfig(0, ids, 'lockstep'), policy)
+             for part in ([0, 3, 6, 9], [1, 4, 7], [2, 5, 8])]
+    rng = random.Random(1)
+    states = [z0]
+    for s in range(steps):
+        ns = stamp_ns(s, policy.dt)
+        order = ids[:]
+        rng.shuffle(order)
+        command = np.full((n, spec.command_dim), np.nan)
+        for robot in order:
+            for host in hosts:
+                host.receive(robot, ns, states[-1][robot])
+                for rid, cmd in host.lockstep_poll(0.0):
+                    command[rid] = cmd.value
+        assert np.all(np.isfinite(command)), f'step {s}: a robot got no command'
+        states.append(zoh_step(states[-1], command, spec, policy.dt))
+    ref = rollout(policy, z0, steps, scenario, policy.d_cr, policy.k, policy.tau, policy.dt)
+    assert np.array_equal(np.stack(states), ref)
+    assert [h.calls for h in hosts] == [steps] * 3
+
+
+def test_ids_as_a_list_or_a_range():
+    assert parse_ids('0..4') == [0, 1, 2, 3, 4]
+    assert parse_ids('3-5') == [3, 4, 5]
+    assert parse_ids([7, 2, 5]) == [2, 5, 7]
+    assert parse_ids('[1, 2,9]') == [1, 2, 9]
+    assert parse_ids(4) == [4]
+    assert format_ids([3, 4, 5]) == '3..5' and format_ids([1, 4]) == '[1, 4]'
+    for bad, words in (('5..2', 'ends before'), ('a..b', 'neither'), ([1, 1], 'duplicates'), ([], 'no robot'),
+                       ([-1, 2], 'negative'), (1.5, 'neither')):
+        with pytest.raises(ConfigError, match=words) as info:
+            parse_ids(bad)
+        assert "'ids'" in str(info.value)
+
+
+def test_a_hosted_id_outside_the_swarm_is_refused(policies):
+    with pytest.raises(ConfigError, match=r"'ids'.*\[12\]"):
+        HostedAgents([1, 12], AgentConfig(0, list(range(10)), 'lockstep'), policies['flock2d'])
+
+
+def test_the_launcher_splits_robots_over_hosting_processes():
+    from knode_swarm_ros.nodes import swarm_hosting as hosting
+    assert hosting.resolve_agents_per_process(0, 10, cores=2) == 1       # small swarms: one process per robot
+    assert hosting.resolve_agents_per_process(0, 100, cores=2) == 50     # 2 processes on 2 cores
+    assert hosting.resolve_agents_per_process(0, 200, cores=16) == 25    # at most 8 processes
+    assert hosting.resolve_agents_per_process(4, 3) == 3
+    with pytest.raises(ConfigError, match='--agents-per-process'):
+        hosting.resolve_agents_per_process(-1, 10)
+    assert hosting.split(range(11), 4) == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10]]
+    cmds = hosting.agent_commands(11, 4, ['py', '-m'], 'pkg', 'agent.yaml', __import__('pathlib').Path('/l'))
+    assert list(cmds) == ['agents_0_3', 'agents_4_7', 'agents_8_10']
+    assert cmds['agents_8_10'][:3] == ['py', '-m', 'pkg.nodes.agents'] and 'ids:=8..10' in cmds['agents_8_10']
+    assert hosting.robots_of('agents_8_10') == [8, 9, 10] and hosting.robots_of('agent_3') == [3]
+    assert hosting.is_agent_process('agent_3') and not hosting.is_agent_process('recorder')
+    with pytest.raises(ConfigError, match='--netns: no network namespace nosuchns_i12'):
+        hosting.check_netns('nosuchns_i12')
+    hosting.check_netns(None)

@@ -1,0 +1,70 @@
+"""A swarm whose robots live on three "hosts": network namespaces joined by a bridge.
+
+The simulator and the recorder run in the first namespace, three hosting agent processes one
+in each, discovery over the subnet with the UDP transport only (not localhost-only, no shared
+memory): the lockstep recording equals core.rollout bit for bit. The namespaces (and with them
+the bridge) are removed whatever happens. Skipped, with the reason, only where the machine
+refuses to create namespaces (not root, no iproute2).
+"""
+import json
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+
+from knode_swarm_ros.core import load_policy, load_trajectories  # noqa: E402
+from knode_swarm_ros.core.rollout import rollout  # noqa: E402
+from knode_swarm_ros.nodes import netns  # noqa: E402
+from test_ros_swarm import Launcher, _assert_no_strays, _pids  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+def _namespaces():
+    return set(line.split()[0] for line in os.popen('ip netns list').read().splitlines() if line.strip())
+
+
+def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path, untrained_policies):
+    before = _namespaces()
+    try:
+        hosts_cm = netns.virtual_hosts(3)
+        hosts = hosts_cm.__enter__()
+    except netns.NetnsUnavailable as exc:
+        print(f'skipped: this machine refuses to create network namespaces: {exc}')
+        pytest.skip(f'this machine refuses to create network namespaces: {exc}')
+    try:
+        record = tmp_path / 'multihost.npz'
+        steps = 150
+        run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 9, '--agents-per-process', 3,
+                       '--steps', steps, '--seed', 2, '--record', record, '--state-timeout', 120,
+                       '--lockstep-timeout', 120,
+                       '--netns', ','.join(h.name for h in hosts))
+        assert run.wait_for('ready after'), run.output
+        # Every process really lives in its namespace: the agents in three different ones.
+        pids = _pids(tmp_path)
+        spaces = {}
+        for name, pid in pids.items():
+            try:
+                spaces[name] = os.readlink(f'/proc/{pid}/ns/net')
+            except OSError:
+                pass
+        own = os.readlink('/proc/self/ns/net')
+        assert own not in spaces.values(), spaces
+        assert spaces['simulator'] == spaces['recorder'] == spaces['agents_0_2'], spaces
+        assert len({spaces['agents_0_2'], spaces['agents_3_5'], spaces['agents_6_8']}) == 3, spaces
+        rc = run.finish()
+        assert rc == 0, run.output
+        data = load_trajectories(record)
+        states = data.states[0]
+        assert states.shape == (steps + 1, 9, 4) and data.meta['incomplete_frames'] == 0
+        policy = load_policy(untrained_policies['flock2d'])
+        ref = rollout(policy, states[0], steps, 'flock2d', policy.d_cr, policy.k, policy.tau, policy.dt)
+        assert np.array_equal(ref, states), f'max state difference {np.abs(ref - states).max()}'
+        report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
+        assert report['steps_run'] == steps and report['lost'] == []
+        _assert_no_strays(tmp_path)
+    finally:
+        hosts_cm.__exit__(None, None, None)
+    assert _namespaces() == before  # nothing left behind
