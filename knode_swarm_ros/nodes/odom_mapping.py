@@ -9,7 +9,7 @@ world-frame velocity is therefore the pose orientation applied to ``twist.linear
 and the three vectors of the message that carry it (position ``[3]``, orientation quaternion
 (x, y, z, w) ``[4]``, twist.linear ``[3]``). The ROS conversions
 (:mod:`knode_swarm_ros.nodes.conversions`, also their serialized fast path) and the ROS-free bag
-writer (:mod:`knode_swarm_ros.nodes.bag_writer`) both call them, so there is one mapping.
+writer (:func:`knode_swarm_ros.bag.odometry_message`) both call them, so there is one mapping.
 
 =========  ===================================  ==========================================================
 scenario   state entry                          Odometry field

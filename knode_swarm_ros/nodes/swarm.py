@@ -397,7 +397,7 @@ class Child:
 
 
 #: What each node logs once its parameters, files and policy have passed its checks.
-_STARTED = {'simulator': ' robots, ', 'recorder': ': recording ', 'agent': 'publishing '}
+_STARTED = {'simulator': ' robots, ', 'recorder': ': recording ', 'agent': 'publishing ', 'agents': ' hosted) of '}
 
 
 def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Path, echo: str) -> Child:
