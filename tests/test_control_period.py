@@ -263,7 +263,7 @@ def test_realtime_defaults_pick_the_policy_of_the_rate(tmp_path):
     config = yaml.safe_load(open(os.path.join(os.path.dirname(__file__), '..', 'config', 'agent_flock2d.yaml')))['/**']['ros__parameters']
     assert config['mode'] == 'realtime' and config['policy'] == '' and config['control_rate'] == 20.0
     from knode_swarm_ros.nodes.agent import load_agent_policy
-    assert load_agent_policy('', config['scenario'], 0, 0.0, -1, 0.0, config['control_rate']).dt == 0.05
+    assert load_agent_policy('', config['scenario'], 0, 0.0, -1, 0.0, control_rate=config['control_rate']).dt == 0.05
     assert load_agent_policy('', 'flock2d', 0, 0.0, -1, 0.0).dt == 0.01                          # lockstep
     record = str(tmp_path / 'r.npz')
     plans = {mode: swarm.plan_run(swarm.build_parser().parse_args(

@@ -269,7 +269,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--merge", nargs="+", required=True, help="results.json files of training.evaluate --scaling")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
-    runs = [json.load(open(path)) for path in args.merge]  # OSError, JSONDecodeError (a ValueError): exit 2
+    runs = []
+    for path in args.merge:
+        try:
+            with open(path) as fh:
+                runs.append(json.load(fh))
+        except (OSError, ValueError) as exc:
+            raise KnodeError(f"--merge {path}: not a readable results.json ({exc})") from None
     policies = {r.get("policy") for r in runs}
     if len(policies) != 1:
         raise KnodeError(f"--merge: the results come from different policies: {sorted(map(str, policies))}")
