@@ -73,16 +73,16 @@ def test_malformed_lines_are_named_by_file_and_line(tmp_path, capsys, mutate, me
     mutate(frames)
     src = write(tmp_path, "rec.txt", frames)
     out = tmp_path / "bad.npz"
-    assert main([str(src), "--out", str(out)]) == 1
+    assert main([str(src), "--out", str(out)]) == 2  # bad input (was 1 before the one error model)
     assert __import__("re").search(message, capsys.readouterr().err)
     assert not out.exists()
 
 
 def test_too_short_and_missing_files(tmp_path, capsys):
     src = write(tmp_path, "short.txt", good_frames(T=5)[0])
-    assert main([str(src), "--out", str(tmp_path / "x.npz")]) == 1
+    assert main([str(src), "--out", str(tmp_path / "x.npz")]) == 2
     assert "need more than the 10 discarded" in capsys.readouterr().err
-    assert main([str(tmp_path / "none.txt"), "--out", str(tmp_path / "x.npz")]) == 1
+    assert main([str(tmp_path / "none.txt"), "--out", str(tmp_path / "x.npz")]) == 2
     assert "no such file" in capsys.readouterr().err
 
 

@@ -27,8 +27,8 @@ from knode_swarm_ros.core.scenarios import Scenario
 from knode_swarm_ros.core.rollout import heading_torch, zoh_step_torch
 
 
-class ConfigError(ValueError):
-    """A training config is invalid; the message names the field."""
+# A training config is invalid; the message names the field (one class with the nodes').
+from knode_swarm_ros.core.errors import ConfigError  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- configs

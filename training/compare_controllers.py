@@ -23,9 +23,11 @@ from typing import Any, Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from knode_swarm_ros.core import PolicyError, TrajectoryError, get_scenario, load_policy, load_trajectories, rollout
+from knode_swarm_ros.core import PolicyError, get_scenario, load_policy, load_trajectories, rollout
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.groundtruth.tanner import local_tanner_acceleration
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 from .common import final_metrics, mean_ci, write_json
 from .kernel_baseline import fit_kernel
@@ -157,6 +159,7 @@ def _named(items: List[str]) -> Dict[str, str]:
     return out
 
 
+@cli("python -m training.compare_controllers")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.compare_controllers", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", required=True, help="flock2d trajectory file (its train split fits the kernel baseline)")
@@ -170,14 +173,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     import torch
     torch.set_num_threads(1)
-    try:
-        ics = args.ics * len(args.sizes) if len(args.ics) == 1 else args.ics
-        if len(ics) != len(args.sizes) or min(ics) < 2 or min(args.sizes) < 2:
-            raise ValueError(f"--ics {args.ics}: one count >= 2, or one per size of --sizes {args.sizes}")
-        compare(_named(args.policy), args.data, args.out, args.sizes, ics, args.steps, args.seed)
-    except (PolicyError, TrajectoryError, ValueError) as exc:
-        print(f"python -m training.compare_controllers: error: {exc}", file=sys.stderr)
-        return 2
+    ics = args.ics * len(args.sizes) if len(args.ics) == 1 else args.ics
+    if len(ics) != len(args.sizes) or min(ics) < 2 or min(args.sizes) < 2:
+        raise KnodeError(f"--ics {args.ics}: one count >= 2, or one per size of --sizes {args.sizes}")
+    compare(_named(args.policy), args.data, args.out, args.sizes, ics, args.steps, args.seed)
     return 0
 
 

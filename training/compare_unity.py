@@ -40,6 +40,7 @@ import numpy as np
 from knode_swarm_ros.core.groundtruth import boids as gt_boids
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.metrics import amd, pod_energy
+from knode_swarm_ros.core.cli import cli
 
 from .boids_stats import alignment, flockmates, speeds, subgroups, wall_distance
 from .import_unity import UnityFormatError, read_recording
@@ -559,6 +560,7 @@ def compare(unity_files: Sequence[str], out: str, runs: int = 30, seed: int = 0,
     return results
 
 
+@cli("python -m training.compare_unity")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.compare_unity", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -578,14 +580,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         ap.error(f"--runs must be >= 2, got {args.runs}")
     if args.discard < 0:
         ap.error(f"--discard must be >= 0, got {args.discard}")
-    try:
-        if args.save_runs and args.frame_times == "fixed":
-            ap.error("--save-runs writes the runs with Unity's frame times; not with --frame-times fixed")
-        compare(args.unity, args.out, args.runs, args.seed, args.frames, args.frame_times, args.figures, args.discard,
-                args.save_runs)
-    except (UnityFormatError, ValueError) as exc:
-        print(f"compare_unity: error: {exc}", file=sys.stderr)
-        return 2
+    if args.save_runs and args.frame_times == "fixed":
+        ap.error("--save-runs writes the runs with Unity's frame times; not with --frame-times fixed")
+    compare(args.unity, args.out, args.runs, args.seed, args.frames, args.frame_times, args.figures, args.discard,
+            args.save_runs)
     return 0
 
 

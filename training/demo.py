@@ -18,12 +18,15 @@ from typing import List, Optional
 
 import torch
 
-from knode_swarm_ros.core import PolicyError, save_trajectories, shipped_policy_path
+from knode_swarm_ros.core import save_trajectories, shipped_policy_path
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import RunError
 from knode_swarm_ros.core.groundtruth import simulate
 
 from .evaluate import evaluate
 
 
+@cli("python -m training.demo")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--trajectories", type=int, default=5, help="test swarms (default 5)")
@@ -35,11 +38,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    try:
-        policy = args.policy or str(shipped_policy_path("flock2d"))
-    except PolicyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    policy = args.policy or str(shipped_policy_path("flock2d"))
     print(f"1/3 simulating {args.trajectories} ground-truth flock2d swarms of {args.robots} robots, {args.steps} frames")
     states = simulate("flock2d", args.trajectories, args.robots, args.steps, args.seed, progress=False)
     os.makedirs(args.out, exist_ok=True)
@@ -57,7 +56,9 @@ def main(argv: Optional[List[str]] = None) -> int:
           f"ground truth {f['truth_min_distance']['min']:.3f}")
     print(f"figures: {os.path.join(args.out, 'metrics.png')}, {os.path.join(args.out, 'snapshots.png')} "
           f"({time.perf_counter() - t0:.1f} s)")
-    return 0 if r["finite"] else 1
+    if not r["finite"]:
+        raise RunError(f"a learnt rollout of {policy} became non-finite (see {args.out})")
+    return 0
 
 
 if __name__ == "__main__":

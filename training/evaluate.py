@@ -26,8 +26,10 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 import torch
 
-from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_scenario, load_policy,
+from knode_swarm_ros.core import (TrajectoryError, amd, avd, get_scenario, load_policy,
                                   load_trajectories, pod_energy, rollout)
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 from . import figures
 from .common import final_metrics, mean_ci, write_json
@@ -239,6 +241,7 @@ def _scaling_lines(s: Dict[str, Any]) -> List[str]:
     return lines
 
 
+@cli("python -m training.evaluate")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", required=True, help="policy file (.pt)")
@@ -262,19 +265,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     for name in ("sizes", "ics", "scaling_steps"):
         value = getattr(args, name)
         if value is not None and min(value if isinstance(value, list) else [value]) < (2 if name == "sizes" else 1):
-            print(f"error: --{name.replace('_', '-')} must be >= {2 if name == 'sizes' else 1}, got {value}",
-                  file=sys.stderr)
-            return 2
-    try:
-        from knode_swarm_ros.core.groundtruth import presets
-        known = presets(load_policy(args.policy).scenario)
-        if args.preset not in known:
-            raise ValueError(f"--preset {args.preset!r}: unknown; known: {', '.join(known)}")
-        evaluate(args.policy, args.data, args.out, args.trajectories, args.steps, args.scaling, args.sizes,
-                 args.ics, args.scaling_steps, args.seed, preset=args.preset)
-    except (PolicyError, TrajectoryError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            raise KnodeError(f"--{name.replace('_', '-')} must be >= {2 if name == 'sizes' else 1}, got {value}")
+    from knode_swarm_ros.core.groundtruth import presets
+    known = presets(load_policy(args.policy).scenario)
+    if args.preset not in known:
+        raise KnodeError(f"--preset {args.preset!r}: unknown; known: {', '.join(known)}")
+    evaluate(args.policy, args.data, args.out, args.trajectories, args.steps, args.scaling, args.sizes,
+             args.ics, args.scaling_steps, args.seed, preset=args.preset)
     return 0
 
 

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 
 from knode_swarm_ros.core import PolicyError, get_scenario, load_policy, neighbour_matrices
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.policy_runtime import META_KEY, SOURCE_KEY, file_sha256, load_onnx_policy, onnx_twin_path
 from knode_swarm_ros.core.trajectory import atomic_write
 
@@ -134,6 +136,7 @@ def export_onnx(pt_path, out: Optional[os.PathLike] = None, tol: float = TOLERAN
     return out, errors
 
 
+@cli("python -m training.export_onnx")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.export_onnx", description=__doc__.split("\n\n")[0])
     parser.add_argument("policies", nargs="+", metavar="POLICY.pt", help="TorchScript policy file(s)")
@@ -141,18 +144,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--tol", type=float, default=TOLERANCE, help="largest allowed difference (default 1e-5)")
     args = parser.parse_args(argv)
     if args.out and len(args.policies) > 1:
-        print("error: --out needs exactly one POLICY.pt", file=sys.stderr)
-        return 2
+        raise KnodeError("--out needs exactly one POLICY.pt")
     if not args.tol > 0:
-        print(f"error: --tol must be > 0, got {args.tol}", file=sys.stderr)
-        return 2
+        raise KnodeError(f"--tol must be > 0, got {args.tol}")
     torch.set_num_threads(1)
     for pt in args.policies:
-        try:
-            path, errors = export_onnx(pt, args.out, args.tol)
-        except PolicyError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+        path, errors = export_onnx(pt, args.out, args.tol)
         print(f"wrote {path}: max difference to TorchScript {max(errors.values()):.2e} "
               f"({', '.join(f'{n} {e:.1e}' for n, e in errors.items())})")
     return 0

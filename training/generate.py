@@ -29,6 +29,8 @@ from knode_swarm_ros import __version__
 from knode_swarm_ros.core.groundtruth import parameters, presets, simulate
 from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.core.trajectory import save_trajectories
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 #: Paper defaults per scenario: trajectories, robots, steps (recorded frames), train trajectories.
 PAPER_DEFAULTS = {
@@ -141,6 +143,7 @@ def flock2d_diagnostics(states: np.ndarray) -> dict:
             "max_speed": [round(float(x), 6) for x in speed]}
 
 
+@cli("python -m training.generate")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = resolve(parser.parse_args(argv), parser)
@@ -172,8 +175,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         save_trajectories(args.out, states, spec.dt, args.scenario, meta)
     except (OSError, ValueError) as exc:
-        print(f"python -m training.generate: error: cannot write --out {args.out}: {exc}", file=sys.stderr)
-        return 1
+        raise KnodeError(f"cannot write --out {args.out}: {exc}") from None
     print(f"wrote {args.out}: states {list(states.shape)} ({args.scenario}, {args.option}, seed {args.seed}), "
           f"{args.train} train / {args.trajectories - args.train} test", file=sys.stderr)
     return 0

@@ -25,12 +25,14 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import torch
 
-from knode_swarm_ros.core import TrajectoryError, get_scenario, load_policy
+from knode_swarm_ros.core import get_scenario, load_policy
+from knode_swarm_ros.core.cli import cli, parse_set
+from knode_swarm_ros.core.errors import KnodeError
 
 from . import figures
-from .common import ConfigError, final_metrics, write_json
+from .common import final_metrics, write_json
 from .evaluate import rollout_policy
-from .train import DataError, DivergenceError, Trainer, _parse_set
+from .train import DivergenceError, Trainer
 from .common import load_config
 
 
@@ -184,6 +186,7 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
     return results
 
 
+@cli("python -m training.grid")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.grid", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", required=True)
@@ -201,25 +204,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     for name in ("trajectories", "rollouts", "steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
-            print(f"error: --{name} must be >= 1, got {getattr(args, name)}", file=sys.stderr)
-            return 2
+            raise KnodeError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if not (np.isfinite(args.perturb) and args.perturb >= 0):
-        print(f"error: --perturb must be a finite number >= 0, got {args.perturb}", file=sys.stderr)
-        return 2
-    try:
-        base = _parse_set(args.set)
-        cfg0 = load_config(args.config, base)
-        torch.set_num_threads(cfg0["training"]["threads"])
-        if not args.collect:
-            for d in args.d_cr:
-                for k in args.k:
-                    cfg = load_config(args.config, {**base, "policy.d_cr": d, "policy.k": k})
-                    run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories,
-                             rollouts=args.rollouts, perturb=args.perturb, steps=args.steps)
-        results = collect(args.out, cfg0["scenario"], args.d_cr, args.k)
-    except (ConfigError, DataError, TrajectoryError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        raise KnodeError(f"--perturb must be a finite number >= 0, got {args.perturb}")
+    base = parse_set(args.set)
+    cfg0 = load_config(args.config, base)
+    torch.set_num_threads(cfg0["training"]["threads"])
+    if not args.collect:
+        for d in args.d_cr:
+            for k in args.k:
+                cfg = load_config(args.config, {**base, "policy.d_cr": d, "policy.k": k})
+                run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories,
+                         rollouts=args.rollouts, perturb=args.perturb, steps=args.steps)
+    results = collect(args.out, cfg0["scenario"], args.d_cr, args.k)
     print(f"{len(results['finished'])} cells finished; wrote {args.out}/results.json and heat maps")
     return 0
 

@@ -26,6 +26,8 @@ from typing import List, Optional, Sequence
 
 from knode_swarm_ros.bag import ODOMETRY, BagError, open_bag
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 from .bags.derive import derive_states, finite_difference, moving_average
 from .bags.options import GAP_FACTOR, ImportOptions, ImportResult, check_options, parse_id_map, split_patterns
@@ -35,8 +37,6 @@ from .bags.timeline import segments, timeline, windows
 
 __all__ = ["ImportOptions", "ImportResult", "import_bag", "main", "BagError", "parse_id_map",
            "moving_average", "finite_difference"]
-
-EXIT_BAD_INPUT = 2
 
 
 def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
@@ -117,12 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@cli("python -m training.import_bag")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.heading_diff is not None and args.scenario != "boids3d":
         parser.error("argument --heading-diff: only for --scenario boids3d")
-    try:
+    try:  # a failure writes nothing (save_trajectories is atomic): say so
         opts = ImportOptions(
             scenario=args.scenario, rate=args.rate, topics=split_patterns(args.topics),
             frames=split_patterns(args.frames), id_map=parse_id_map(args.id_map) if args.id_map else None,
@@ -136,9 +137,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             sys.argv[1:] if argv is None else argv)))
         save_trajectories(args.out, result.states, result.dt, result.scenario, meta)
     except (BagError, TrajectoryError, OSError) as exc:
-        print(f"import_bag: error: {exc}", file=sys.stderr)
-        print("import_bag: nothing written", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        raise KnodeError(f"{exc}; nothing written") from None
     for line in result.summary:
         print(line)
     print(f"wrote {args.out}: states {list(result.states.shape)} ({result.scenario}, dt {result.dt:.6g} s)")

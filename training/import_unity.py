@@ -28,6 +28,8 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from knode_swarm_ros.core import save_trajectories
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 __all__ = ["read_recording", "import_recordings", "shipped_recordings", "UNITY_DIR", "UnityFormatError", "main"]
 
@@ -39,7 +41,7 @@ _TUPLE = re.compile(r"\(([^()]*)\)")
 UNIT_TOLERANCE = 1e-4
 
 
-class UnityFormatError(ValueError):
+class UnityFormatError(KnodeError, ValueError):
     """A recording line is malformed; the message names file and line."""
 
 
@@ -131,6 +133,7 @@ def import_recordings(paths: Sequence, out, dt: float = 1.0 / 60.0, discard: int
     return written
 
 
+@cli("python -m training.import_unity")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.import_unity", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -144,11 +147,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         ap.error(f"--dt must be > 0, got {args.dt}")
     if args.discard < 0:
         ap.error(f"--discard must be >= 0, got {args.discard}")
-    try:
-        written = import_recordings(args.files, args.out, args.dt, args.discard, args.separate)
-    except (UnityFormatError, ValueError) as exc:
-        print(f"import_unity: error: {exc}", file=sys.stderr)
-        return 1
+    written = import_recordings(args.files, args.out, args.dt, args.discard, args.separate)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -25,6 +25,8 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from knode_swarm_ros.core import avd, amd, get_scenario, load_policy, load_trajectories, rollout
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 from .common import write_json
 
@@ -132,6 +134,7 @@ def write_summary(path: str, results: Dict[str, Any]) -> None:
         fh.write("\n".join(lines) + "\n")
 
 
+@cli("python -m training.rate_study")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.rate_study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", required=True, help="trajectory file with a test split (the held-out starts)")
@@ -151,12 +154,10 @@ def main(argv: Optional[List[str]] = None) -> int:
             cases[float(rate)] = path
             assert sep and float(rate) > 0 and os.path.isfile(path)
         except (ValueError, AssertionError):
-            print(f"error: --case {item!r}: expected RATE=POLICY with RATE > 0 Hz and an existing policy file",
-                  file=sys.stderr)
-            return 2
+            raise KnodeError(f"--case {item!r}: expected RATE=POLICY with RATE > 0 Hz and an existing policy "
+                             f"file") from None
     if args.starts < 1 or args.seconds <= 0:
-        print("error: --starts must be >= 1 and --seconds > 0", file=sys.stderr)
-        return 2
+        raise KnodeError("--starts must be >= 1 and --seconds > 0")
     study(args.data, cases, args.out, args.starts, args.seconds, args.realtime, args.real_time_factor, args.timeout)
     print(open(os.path.join(args.out, "summary.md")).read())
     return 0

@@ -26,6 +26,8 @@ from typing import Any, Callable, Dict, List, Optional
 import numpy as np
 
 from knode_swarm_ros.core import PolicyError, amd, avd, load_policy
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.link import LinkConfig, link_rollout
 
@@ -140,6 +142,7 @@ def figure(results: Dict[str, Any], path: str) -> None:
     plt.close(fig)
 
 
+@cli("python -m training.robustness")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m training.robustness', description=__doc__.split('\n\n')[0])
     parser.add_argument('--policy', required=True, help='flock2d policy file (.pt)')
@@ -155,16 +158,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     for name in ('starts', 'robots', 'steps', 'delay_unit'):
         low = 2 if name in ('starts', 'robots') else 1
         if getattr(args, name) < low:
-            print(f"error: --{name.replace('_', '-')} must be >= {low}, got {getattr(args, name)}", file=sys.stderr)
-            return 2
+            raise KnodeError(f"--{name.replace('_', '-')} must be >= {low}, got {getattr(args, name)}")
     import torch
     torch.set_num_threads(1)
-    try:
-        results = run(args.policy, args.out, args.starts, args.robots, args.steps, args.seed, args.delay_unit,
-                      args.timeout_steps)
-    except (PolicyError, ValueError, OSError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    results = run(args.policy, args.out, args.starts, args.robots, args.steps, args.seed, args.delay_unit,
+                  args.timeout_steps)
     g = results['goal']
     print(f"wrote {args.out}/results.json and robustness.png; at 10 % loss the learnt amd changed by "
           f"{100 * g['amd_change_at_10pct_loss']:.1f} % with {g['collisions_at_10pct_loss']} collision run(s): "

@@ -21,8 +21,10 @@ from typing import List, Optional
 
 import numpy as np
 
-from knode_swarm_ros.core import (RUNTIMES, PolicyError, TrajectoryError, load_runtime, load_trajectories,
+from knode_swarm_ros.core import (RUNTIMES, TrajectoryError, load_runtime, load_trajectories,
                                   parse_trajectory_ref, rollout, save_trajectories)
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.link import LinkConfig, link_rollout
 
 
@@ -56,6 +58,7 @@ def rollout_file(policy_path: str, init_ref: str, steps: int, out: str, dt: Opti
     return states
 
 
+@cli("python -m training.rollout")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.rollout", description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", required=True, help="policy file (.pt, TorchScript with knode.json)")
@@ -73,20 +76,16 @@ def main(argv: Optional[List[str]] = None) -> int:
                         help="a peer silent longer than this is no neighbour (default: 0.5 s of steps)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the link model (default 0)")
     args = parser.parse_args(argv)
-    try:
-        for flag in ("link_delay_steps", "link_jitter_steps"):
-            if getattr(args, flag) < 0:
-                raise ValueError(f"--{flag.replace('_', '-')} must be >= 0, got {getattr(args, flag)}")
-        link = LinkConfig(args.link_loss, float(args.link_delay_steps), float(args.link_jitter_steps),
-                          args.link_range, args.seed)
-        link.validate(prefix="--link-")
-        if args.link_timeout_steps is not None and args.link_timeout_steps < 0:
-            raise ValueError(f"--link-timeout-steps must be >= 0, got {args.link_timeout_steps}")
-        states = rollout_file(args.policy, args.init, args.steps, args.out, args.dt, args.runtime, link,
-                              args.link_timeout_steps)
-    except (PolicyError, TrajectoryError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    for flag in ("link_delay_steps", "link_jitter_steps"):
+        if getattr(args, flag) < 0:
+            raise KnodeError(f"--{flag.replace('_', '-')} must be >= 0, got {getattr(args, flag)}")
+    link = LinkConfig(args.link_loss, float(args.link_delay_steps), float(args.link_jitter_steps),
+                      args.link_range, args.seed)
+    link.validate(prefix="--link-")
+    if args.link_timeout_steps is not None and args.link_timeout_steps < 0:
+        raise KnodeError(f"--link-timeout-steps must be >= 0, got {args.link_timeout_steps}")
+    states = rollout_file(args.policy, args.init, args.steps, args.out, args.dt, args.runtime, link,
+                          args.link_timeout_steps)
     print(f"wrote {args.out}: {states.shape[0]} frames of {states.shape[1]} robots")
     return 0
 

@@ -30,6 +30,8 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from knode_swarm_ros.core import amd, get_scenario
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 
 from . import figures
 from .boids_stats import PERCEPTION_RADIUS, group_labels, subgroups
@@ -255,6 +257,7 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
     return lines
 
 
+@cli("python -m training.scaling3d")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """``python -m training.scaling3d --merge A/results.json B/results.json --out DIR``: one study from
     ``training.evaluate --scaling`` runs of one policy at different sizes (run in parallel)."""
@@ -266,15 +269,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--merge", nargs="+", required=True, help="results.json files of training.evaluate --scaling")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
-    try:
-        runs = [json.load(open(path)) for path in args.merge]
-        policies = {r.get("policy") for r in runs}
-        if len(policies) != 1:
-            raise ValueError(f"--merge: the results come from different policies: {sorted(map(str, policies))}")
-        merged = merge([r["scaling"] for r in runs])
-    except (OSError, ValueError, KeyError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    runs = []
+    for path in args.merge:
+        try:
+            with open(path) as fh:
+                runs.append(json.load(fh))
+        except (OSError, ValueError) as exc:
+            raise KnodeError(f"--merge {path}: not a readable results.json ({exc})") from None
+    policies = {r.get("policy") for r in runs}
+    if len(policies) != 1:
+        raise KnodeError(f"--merge: the results come from different policies: {sorted(map(str, policies))}")
+    missing = [path for path, r in zip(args.merge, runs) if "scaling" not in r]
+    if missing:
+        raise KnodeError(f"--merge: {', '.join(missing)} hold no 'scaling' results (training.evaluate --scaling)")
+    merged = merge([r["scaling"] for r in runs])
     os.makedirs(args.out, exist_ok=True)
     write_json(os.path.join(args.out, "results.json"), {**runs[0], "scaling": merged, "merged_from": args.merge})
     draw(merged, args.out)

@@ -32,7 +32,9 @@ import numpy as np
 import torch
 import yaml
 
-from knode_swarm_ros.core import PolicyError, TrajectoryError, export_policy, get_scenario, load_trajectories
+from knode_swarm_ros.core import PolicyError, export_policy, get_scenario, load_trajectories
+from knode_swarm_ros.core.cli import cli, parse_set
+from knode_swarm_ros.core.errors import KnodeError, RunError
 from knode_swarm_ros.core.trajectory import atomic_write
 
 from .common import (ConfigError, Samples, augment_batch, build_policy, final_metrics, git_commit, load_config, loss_scales,
@@ -41,11 +43,16 @@ from .common import (ConfigError, Samples, augment_batch, build_policy, final_me
 from .period import period_ratio, policy_dt, subsample
 
 
-class DivergenceError(RuntimeError):
-    """Training diverged (NaN or exploding loss)."""
+class DivergenceError(RunError, RuntimeError):
+    """Training diverged (NaN or exploding loss); ``training.train`` exits 3 (documented above)."""
+
+    exit_status = 3
+
+    def __str__(self) -> str:
+        return f"training diverged: {super().__str__()}"
 
 
-class DataError(ValueError):
+class DataError(KnodeError, ValueError):
     """The data file does not fit the config."""
 
 
@@ -381,16 +388,7 @@ class Trainer:
         return summary
 
 
-def _parse_set(items: List[str]) -> Dict[str, Any]:
-    out = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
-        out[key] = yaml.safe_load(value)
-    return out
-
-
+@cli("python -m training.train")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.train", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", required=True, help="YAML training config (config/train_*.yaml)")
@@ -400,16 +398,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override a config field")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    try:
-        cfg = load_config(args.config, _parse_set(args.set))
-        trainer = Trainer(cfg, args.data, args.out, resume=args.resume, progress=not args.no_progress)
-        summary = trainer.run()
-    except (ConfigError, DataError, TrajectoryError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except DivergenceError as exc:
-        print(f"error: training diverged: {exc}", file=sys.stderr)
-        return 3
+    cfg = load_config(args.config, parse_set(args.set))
+    trainer = Trainer(cfg, args.data, args.out, resume=args.resume, progress=not args.no_progress)
+    summary = trainer.run()  # DivergenceError: exit 3
     print(f"wrote {summary['policy']} ({summary['selected']}, {summary['train_seconds']} s)")
     return 0
 

@@ -23,6 +23,8 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from knode_swarm_ros.core import PolicyError, amd, avd, load_policy, rollout
+from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.network import neighbour_matrix
 from knode_swarm_ros.core.unicycle import UnicycleLimits, UnicycleMapper, point_ahead, unicycle_step
@@ -98,6 +100,7 @@ def run(policy_path: str, out: str, starts: int = 10, robots: int = 10, steps: i
     return results
 
 
+@cli("python -m training.unicycle_study")
 def main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog='python -m training.unicycle_study', description=__doc__.split('\n\n')[0])
     p.add_argument('--policy', required=True)
@@ -107,15 +110,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--seed', type=int, default=2026)
     a = p.parse_args(argv)
     if a.starts < 2 or a.steps < 1:
-        print('error: --starts must be >= 2 and --steps >= 1', file=sys.stderr)
-        return 2
+        raise KnodeError('--starts must be >= 2 and --steps >= 1')
     import torch
     torch.set_num_threads(1)
-    try:
-        run(a.policy, a.out, a.starts, 10, a.steps, a.seed)
-    except (PolicyError, OSError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    run(a.policy, a.out, a.starts, 10, a.steps, a.seed)
     return 0
 
 

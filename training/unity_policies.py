@@ -24,7 +24,8 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.core import PolicyError, TrajectoryError, amd, load_policy, load_trajectories, pod_kld, rollout
+from knode_swarm_ros.core import PolicyError, amd, load_policy, load_trajectories, pod_kld, rollout
+from knode_swarm_ros.core.cli import cli
 
 from .compare_unity import run_statistics
 
@@ -199,6 +200,7 @@ def _summary(path: str, r: Dict[str, Any]) -> None:
         fh.write("\n".join(lines))
 
 
+@cli("python -m training.unity_policies")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.unity_policies", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -213,12 +215,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = ap.parse_args(argv)
     if args.steps < 10:
         ap.error(f"--steps must be >= 10, got {args.steps}")
-    try:
-        evaluate_policies(_pairs(args.policy, "policy"), _pairs(args.data, "data"), args.out, args.steps, args.figures,
-                          args.oracle)
-    except (ValueError, PolicyError, TrajectoryError) as exc:
-        print(f"unity_policies: error: {exc}", file=sys.stderr)
-        return 2
+    evaluate_policies(_pairs(args.policy, "policy"), _pairs(args.data, "data"), args.out, args.steps, args.figures,
+                      args.oracle)
     return 0
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from knode_swarm_ros.core import save_trajectories
 from knode_swarm_ros.core.groundtruth import boids as gt_boids
+from knode_swarm_ros.core.cli import cli
 
 from .compare_unity import NOMINAL_DT, PRESET, estimate_frame_times
 from .import_unity import UnityFormatError, read_recording
@@ -76,6 +77,7 @@ def retime_recordings(paths: Sequence[str], out: str, discard: int = gt_boids.DI
     return states
 
 
+@cli("python -m training.unity_retime")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.unity_retime", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -85,11 +87,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = ap.parse_args(argv)
     if args.discard < 0:
         ap.error(f"--discard must be >= 0, got {args.discard}")
-    try:
-        states = retime_recordings(args.files, args.out, args.discard)
-    except (UnityFormatError, ValueError) as exc:
-        print(f"unity_retime: error: {exc}", file=sys.stderr)
-        return 2
+    states = retime_recordings(args.files, args.out, args.discard)
     print(f"wrote {args.out}: {states.shape[0]} recordings x {states.shape[1]} samples of 1/60 s")
     return 0
 

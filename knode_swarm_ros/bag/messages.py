@@ -19,6 +19,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import numpy as np
 
+from ..core.errors import KnodeError
 from ..nodes.common import WORLD_FRAME, robot_frame
 from ..nodes.odom_mapping import state_to_fields
 
@@ -32,7 +33,7 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 SUPPORTED_TYPES = (ODOMETRY, POSE_STAMPED, TF_MESSAGE)
 
 
-class BagError(ValueError):
+class BagError(KnodeError, ValueError):
     """The input is not a readable bag, or its content does not fit the request; the message names
     the file, topic or frame."""
 

@@ -17,9 +17,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Dict, Optional, Union
 
+from .errors import KnodeError
 from .scenarios import SCENARIOS, get_scenario
 
-__all__ = ["PolicyError", "FORMAT", "REQUIRED_KEYS", "BOUNDS", "check_meta", "parse_meta", "read_pt_meta",
+__all__ = ["PolicyError", "PolicyMismatchError", "FORMAT", "REQUIRED_KEYS", "BOUNDS", "check_meta", "parse_meta", "read_pt_meta",
            "shipped_policy_path"]
 
 FORMAT = "knode-policy/1"
@@ -41,8 +42,18 @@ _WHY = {"k": "rows of Y: the robot plus at most 1023 neighbours; Y [B, k, d] is 
         "command_limit": "per-axis saturation of the command"}
 
 
-class PolicyError(ValueError):
+class PolicyError(KnodeError, ValueError):
     """A policy file is missing, corrupt or does not match what the caller needs."""
+
+
+class PolicyMismatchError(PolicyError):
+    """A valid policy file whose knode.json ``key`` is ``got`` where the caller required ``required``
+    (``expect=`` of the loaders); callers that name the key differently (a node's parameter) read
+    the fields."""
+
+    def __init__(self, where: str, key: str, got: Any, required: Any):
+        super().__init__(f"{where}: knode.json key {key!r} is {got!r} but {required!r} was required")
+        self.key, self.got, self.required = key, got, required
 
 
 def _is_int(v) -> bool:
@@ -96,7 +107,7 @@ def check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) -
         got = meta.get(key)
         same = math.isclose(float(got), float(value), rel_tol=1e-9) if _is_num(got) and _is_num(value) else got == value
         if not same:
-            raise PolicyError(f"{where}: knode.json key {key!r} is {got!r} but {value!r} was required")
+            raise PolicyMismatchError(where, key, got, value)
 
 
 def parse_meta(where: str, text: Union[str, bytes, None]) -> Dict[str, Any]:

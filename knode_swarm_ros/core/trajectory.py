@@ -15,6 +15,7 @@ from typing import Any, Dict, Optional, Tuple, Union
 
 import numpy as np
 
+from .errors import KnodeError
 from .scenarios import get_scenario
 
 __all__ = ["TrajectoryFile", "TrajectoryError", "load_trajectories", "save_trajectories",
@@ -23,7 +24,7 @@ __all__ = ["TrajectoryFile", "TrajectoryError", "load_trajectories", "save_traje
 PathLike = Union[str, os.PathLike]
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(KnodeError, ValueError):
     """A trajectory file is missing, malformed or inconsistent; the message names file and field."""
 
 

@@ -12,7 +12,6 @@ declares parameters, converts messages and keeps time. The node is called ``agen
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import time
@@ -66,7 +65,7 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
         ConfigError: missing, corrupt or mismatched policy file; the message names the
             parameter or the file and both values.
     """
-    from ..core.policy_meta import PolicyError, shipped_policy_path
+    from ..core.policy_meta import PolicyError, PolicyMismatchError, shipped_policy_path
     from ..core.policy_runtime import load_runtime  # imports torch only for the TorchScript backend
     if not path:
         scenario = scenario or 'flock2d'
@@ -76,22 +75,16 @@ def load_agent_policy(path: str, scenario: str, k: int, d_cr: float, tau: int, d
         except PolicyError as exc:
             raise ConfigError(f"parameter 'policy' is empty, so the shipped policy of scenario "
                               f"{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt") from None
-    try:
-        policy = load_runtime(path, runtime, threads=threads)
-    except PolicyError as exc:
-        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
     wanted = {'scenario': scenario or None, 'k': k if k > 0 else None, 'd_cr': d_cr if d_cr > 0 else None,
               'tau': tau if tau >= 0 else None, 'dt': dt if dt > 0 else None}
-    for key, value in wanted.items():
-        if value is None:
-            continue
-        got = policy.meta[key]
-        same = math.isclose(float(got), float(value), rel_tol=1e-9) if key in ('d_cr', 'dt') else got == value
-        if not same:
-            raise ConfigError(f'parameter {key!r} = {value!r} contradicts the policy file {path}, '
-                              f'whose knode.json has {key} = {got!r} (leave {key!r} unset to use the '
-                              f"policy's value)")
-    return policy
+    try:
+        return load_runtime(path, runtime, expect=wanted, threads=threads)
+    except PolicyMismatchError as exc:  # the parameter and the file disagree: name the parameter
+        raise ConfigError(f'parameter {exc.key!r} = {exc.required!r} contradicts the policy file {path}, '
+                          f'whose knode.json has {exc.key} = {exc.got!r} (leave {exc.key!r} unset to use the '
+                          f"policy's value)") from None
+    except PolicyError as exc:
+        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
 
 
 class AgentNode(ManagedAgentMixin, LifecycleNode):

@@ -46,12 +46,10 @@ AMD_TOPIC = 'recorder/amd'                   # std_msgs/Float64
 MARKERS_TOPIC = 'markers'                    # visualization_msgs/MarkerArray
 
 
-class ConfigError(ValueError):
-    """A parameter, argument or input file that prevents a node from starting.
-
-    The message names the parameter (or file) and the offending value; executables print it
-    and exit with :data:`EXIT_CONFIG`.
-    """
+# A parameter, argument or input file that prevents a node from starting: the message names the
+# parameter (or file) and the offending value; executables print it and exit with EXIT_CONFIG.
+# One class with the training config's (knode_swarm_ros.core.errors).
+from ..core.errors import ConfigError  # noqa: E402
 
 
 def odom_topic(robot: int) -> str:

@@ -41,6 +41,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import AccelStamped, TwistStamped
 from nav_msgs.msg import Odometry
 
+from ..core.errors import KnodeError
 from ..core.scenarios import Scenario, get_scenario
 from . import orientation
 from .common import WORLD_FRAME, robot_frame
@@ -113,7 +114,7 @@ def odom_to_state(msg: Odometry, scenario: ScenarioLike, twist_frame: str = 'bod
 
 
 # --- serialized Odometry (CDR, as rmw_fastrtps puts it on the wire) ---------------------------
-class CdrError(ValueError):
+class CdrError(KnodeError, ValueError):
     """Bytes that are not a serialized nav_msgs/Odometry."""
 
 

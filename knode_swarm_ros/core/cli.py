@@ -1,0 +1,70 @@
+"""The one runner of every command-line main (docs/DESIGN.md, "Errors and exit statuses").
+
+    @cli("python -m training.train")
+    def main(argv=None) -> int:
+        args = parser.parse_args(argv)   # argparse reports its own errors (exit 2)
+        ...                              # raise KnodeError / RunError subclasses; return 0
+
+:func:`cli` turns what escapes ``main`` into one line ``prog: error: <message>`` on stderr (no
+traceback) and the exit status: :class:`~.errors.KnodeError`'s ``exit_status`` (2 bad input,
+1 a failed run, 3 where a command documents it), 2 for a ``ValueError`` or ``OSError`` (the
+standard library's and numpy's words for an unusable value or file: a missing or unreadable
+input, an unparsable number), 130 for Ctrl-C. Anything else is a bug and keeps its traceback.
+:func:`parse_set` is the shared ``--set SECTION.KEY=VALUE`` parser.
+"""
+import functools
+import sys
+from typing import Any, Callable, Dict, Iterable, Optional
+
+from .errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, ConfigError, KnodeError
+
+__all__ = ["cli", "report", "parse_set"]
+
+
+def report(prog: str, exc: BaseException) -> int:
+    """Print ``prog: error: <exc>`` on stderr; return the exit status ``exc`` stands for."""
+    if isinstance(exc, KeyboardInterrupt):
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if isinstance(exc, OSError) and not str(exc):
+        exc = OSError(type(exc).__name__)
+    print(f"{prog}: error: {exc}", file=sys.stderr)
+    return exc.exit_status if isinstance(exc, KnodeError) else EXIT_BAD_INPUT
+
+
+def cli(prog: str) -> Callable[[Callable[..., Optional[int]]], Callable[..., int]]:
+    """Decorate a ``main(argv=None) -> int`` so that errors end as described in the module doc.
+
+    ``SystemExit`` (argparse, ``parser.error``) passes through unchanged.
+    """
+    def wrap(main: Callable[..., Optional[int]]) -> Callable[..., int]:
+        @functools.wraps(main)
+        def run(*args: Any, **kwargs: Any) -> int:
+            try:
+                status = main(*args, **kwargs)
+            except (KnodeError, ValueError, OSError, KeyboardInterrupt) as exc:
+                return report(prog, exc)
+            return 0 if status is None else int(status)
+        run.prog = prog
+        return run
+    return wrap
+
+
+def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
+    """``["training.epochs=10", ...]`` (repeated ``--set SECTION.KEY=VALUE``) -> ``{"training.epochs": 10}``,
+    each value parsed as YAML (``10`` an int, ``[1, 2]`` a list, ``adjoint`` a string).
+
+    Raises:
+        ConfigError: an item without ``=``, or a value that is not valid YAML.
+    """
+    import yaml
+    out: Dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {item!r}: the value is not valid YAML ({exc})") from None
+    return out
