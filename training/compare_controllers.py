@@ -27,7 +27,9 @@ from knode_swarm_ros.core import PolicyError, TrajectoryError, get_scenario, loa
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.groundtruth.tanner import local_tanner_acceleration
 
-from .common import final_metrics, mean_ci, write_json
+from .records import write_json
+from .scores import final_metrics
+from .stats import mean_ci
 from .kernel_baseline import fit_kernel
 
 METRICS = ("avd_final", "amd_final", "min_distance")

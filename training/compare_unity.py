@@ -37,6 +37,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from knode_swarm_ros.core.geometry import pair_distances
 from knode_swarm_ros.core.groundtruth import boids as gt_boids
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.metrics import amd, pod_energy
@@ -130,9 +131,7 @@ def decision_margins(frame: np.ndarray, params=None) -> np.ndarray:
     decide differently."""
     params = gt_boids.get_preset(PRESET) if params is None else params
     p, h = frame[:, :3], frame[:, 3:]
-    n = p.shape[0]
-    dist = np.linalg.norm(p[:, None] - p[None], axis=-1)
-    dist[np.arange(n), np.arange(n)] = np.inf
+    dist = pair_distances(p)
     margin = np.minimum(np.abs(dist - params.perception_radius).min(1), np.abs(dist - params.avoidance_radius).min(1))
     lo, hi = gt_boids._sweep_limits(p, params)
     heading = np.minimum(hi - h, h - lo).min(-1)

@@ -30,7 +30,9 @@ from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_sc
                                   load_trajectories, pod_energy, rollout)
 
 from . import figures
-from .common import final_metrics, mean_ci, write_json
+from .records import write_json
+from .scores import final_metrics
+from .stats import mean_ci
 from .period import period_ratio, subsample
 
 # Goals of issue 4 (reported, not enforced).

@@ -28,10 +28,12 @@ import torch
 from knode_swarm_ros.core import TrajectoryError, get_scenario, load_policy
 
 from . import figures
-from .common import ConfigError, final_metrics, write_json
+from .config import ConfigError
+from .records import write_json
+from .scores import final_metrics
 from .evaluate import rollout_policy
 from .train import DataError, DivergenceError, Trainer, _parse_set
-from .common import load_config
+from .config import load_config
 
 
 def cell_name(d_cr: float, k: int) -> str:

@@ -26,7 +26,7 @@ import numpy as np
 
 from knode_swarm_ros.core import avd, amd, get_scenario, load_policy, load_trajectories, rollout
 
-from .common import write_json
+from .records import write_json
 
 LAST = 10   # frames averaged for the final metrics (as training.evaluate)
 

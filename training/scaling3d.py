@@ -33,7 +33,7 @@ from knode_swarm_ros.core import amd, get_scenario
 
 from . import figures
 from .boids_stats import PERCEPTION_RADIUS, group_labels, subgroups
-from .common import final_metrics
+from .scores import final_metrics
 
 __all__ = ["outside", "escaped", "subswarm_count", "escape_events", "size_metrics", "scaling_study",
            "goal_check", "summary_lines", "GOALS"]
@@ -261,7 +261,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     import argparse
     import json
     import sys
-    from .common import write_json
+    from .records import write_json
     parser = argparse.ArgumentParser(prog="python -m training.scaling3d", description=main.__doc__.split("\n")[0])
     parser.add_argument("--merge", nargs="+", required=True, help="results.json files of training.evaluate --scaling")
     parser.add_argument("--out", required=True)

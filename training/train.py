@@ -35,9 +35,11 @@ import yaml
 from knode_swarm_ros.core import PolicyError, TrajectoryError, export_policy, get_scenario, load_trajectories
 from knode_swarm_ros.core.trajectory import atomic_write
 
-from .common import (ConfigError, Samples, augment_batch, build_policy, final_metrics, git_commit, load_config, loss_scales,
-                     implied_command, make_samples, one_step_loss, predict_next, rollout_module, selection_score,
-                     write_json)
+from .config import ConfigError, build_policy, load_config
+from .objectives import loss_scales, one_step_loss, predict_next
+from .records import git_commit, write_json
+from .samples import Samples, augment_batch, implied_command, make_samples
+from .scores import final_metrics, rollout_module, selection_score
 from .period import period_ratio, policy_dt, subsample
 
 

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import pair_distances
+
 __all__ = ["avd", "amd", "pod_energy", "pod_kld"]
-
-
-def _pair_distances(x: np.ndarray) -> np.ndarray:
-    diff = x[..., :, None, :] - x[..., None, :, :]
-    return np.sqrt(np.sum(diff * diff, axis=-1))
 
 
 def avd(velocities: np.ndarray) -> np.ndarray:
@@ -23,7 +20,7 @@ def avd(velocities: np.ndarray) -> np.ndarray:
     n = velocities.shape[-2]
     if n < 2:
         raise ValueError("avd needs at least 2 robots")
-    return _pair_distances(velocities).sum(axis=(-1, -2)) / (n * (n - 1))
+    return pair_distances(velocities, exclude_self=False).sum(axis=(-1, -2)) / (n * (n - 1))
 
 
 def amd(positions: np.ndarray) -> np.ndarray:
@@ -31,9 +28,7 @@ def amd(positions: np.ndarray) -> np.ndarray:
     n = positions.shape[-2]
     if n < 2:
         raise ValueError("amd needs at least 2 robots")
-    dist = _pair_distances(positions)
-    dist[..., np.arange(n), np.arange(n)] = np.inf
-    return dist.min(axis=-1).mean(axis=-1)
+    return pair_distances(positions).min(axis=-1).mean(axis=-1)
 
 
 def pod_energy(states: np.ndarray, modes: int = 10, center: bool = False, squared: bool = False) -> np.ndarray:
