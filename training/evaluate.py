@@ -32,7 +32,7 @@ from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_sc
 from . import figures
 from .records import write_json
 from .scores import final_metrics
-from .stats import mean_ci
+from .stats import describe
 from .period import period_ratio, subsample
 
 # Goals of issue 4 (reported, not enforced).
@@ -40,13 +40,6 @@ GOALS = {
     "flock2d": "mean final avd <= 0.05; mean final amd within 15% of ground truth; min distance after 1 s > 0.3",
     "boids3d": "final amd within 25% of ground truth; mean POD-KLD <= 0.05; >= 18 of 20 rollouts stay in the cube",
 }
-
-
-def _summary_stats(values: Sequence[float]) -> Dict[str, float]:
-    v = np.asarray(values, dtype=np.float64)
-    mean, half = mean_ci(v[:, None], axis=0) if len(v) > 1 else (v, np.zeros(1))
-    return {"mean": float(np.mean(v)), "median": float(np.median(v)), "ci95": float(half[0]),
-            "min": float(np.min(v)), "max": float(np.max(v))}
 
 
 def rollout_policy(policy, z0: np.ndarray, steps: int) -> np.ndarray:
@@ -115,7 +108,7 @@ def evaluate(policy_path: str, data_path: str, out: str, trajectories: int = 20,
         "rollout_seconds": round(rollout_s, 2), "finite": finite, "goals": GOALS[spec.name],
         "policy_meta": {k: policy.meta.get(k) for k in ("k", "d_cr", "tau", "frame", "command_limit", "hidden")},
         "per_trajectory": fm,
-        "final": {key: _summary_stats(v) for key, v in fm.items() if key != "stays_inside"},
+        "final": {key: describe(v) for key, v in fm.items() if key != "stays_inside"},
         "curves_mean": {name: {label: np.mean(v, axis=0)[:: max(T // 200, 1)].tolist() for label, v in s.items()}
                         for name, s in curves.items()},
     }
@@ -182,7 +175,7 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
         fm = final_metrics(spec, pred, truth, dt=policy.dt)
         row = {"robots": int(n), "seconds": round(time.perf_counter() - t0, 1)}
         for key, value in fm.items():
-            row[key] = _summary_stats(value) if key != "stays_inside" else int(np.sum(value))
+            row[key] = describe(value) if key != "stays_inside" else int(np.sum(value))
         rows.append(row)
         if spec.velocity is not None:
             boxes["avd"]["prediction"].append(fm["avd_final"])

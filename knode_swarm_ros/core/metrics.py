@@ -12,7 +12,7 @@ import numpy as np
 
 from .geometry import pair_distances
 
-__all__ = ["avd", "amd", "pod_energy", "pod_kld"]
+__all__ = ["avd", "amd", "pod_energy", "pod_kld", "kl_divergence"]
 
 
 def avd(velocities: np.ndarray) -> np.ndarray:
@@ -60,7 +60,11 @@ def pod_kld(true_states: np.ndarray, predicted_states: np.ndarray, modes: int = 
 
     ``eps`` keeps the divergence finite where the prediction has no energy in a mode.
     """
-    p = pod_energy(true_states, modes, center, squared)
-    q = pod_energy(predicted_states, modes, center, squared)
+    return kl_divergence(pod_energy(true_states, modes, center, squared),
+                         pod_energy(predicted_states, modes, center, squared), eps)
+
+
+def kl_divergence(p: np.ndarray, q: np.ndarray, eps: float = 1e-12) -> float:
+    """KL(p || q) of two distributions ``[m]`` over the support of p; ``q`` is floored at ``eps``."""
     support = p > 0
     return float(np.sum(p[support] * np.log(p[support] / np.maximum(q[support], eps))))
