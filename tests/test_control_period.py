@@ -174,7 +174,7 @@ def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path
     torch = pytest.importorskip('torch')
     from knode_swarm_ros.core import load_policy
     from training.config import normalise_config
-    from training.train import Trainer
+    from training.trainer import Trainer
     torch.set_num_threads(1)
     data, linear = _held_teacher_data(tmp_path)
     raw = {'scenario': 'flock2d', 'seed': 3, 'policy': {'hidden': 32, 'd_cr': 3.0, 'k': 4, 'collision': False},
@@ -198,7 +198,8 @@ def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path
 def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(tmp_path, capsys):
     pytest.importorskip('torch')
     from training.config import normalise_config
-    from training.train import Trainer, main as train_main
+    from training.train import main as train_main
+    from training.trainer import Trainer
     data, _ = _held_teacher_data(tmp_path, steps=8)      # 41 frames at 0.01 s
     raw = {'scenario': 'flock2d', 'seed': 3, 'policy': {'hidden': 8, 'd_cr': 3.0, 'k': 4},
            'data': {'val_trajectories': 1, 'policy_dt': 0.05}, 'training': {'epochs': 1, 'threads': 1},

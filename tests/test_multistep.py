@@ -15,7 +15,7 @@ from training.config import ConfigError, normalise_config
 from training.objectives import loss_scales
 from training.multistep import (Windows, augment_windows, horizon_at, rollout_windows, window_loss,
                                 window_scales)
-from training.train import Trainer
+from training.trainer import Trainer
 
 torch.set_num_threads(1)
 FLOCK = get_scenario("flock2d")

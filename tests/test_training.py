@@ -17,7 +17,8 @@ from training.config import ConfigError, build_policy, normalise_config  # noqa:
 from training.objectives import loss_scales, one_step_loss, predict_next  # noqa: E402
 from training.samples import implied_command, make_samples  # noqa: E402
 from training.scores import module_policy_fn  # noqa: E402
-from training.train import DivergenceError, Trainer, main as train_main  # noqa: E402
+from training.train import main as train_main  # noqa: E402
+from training.trainer import DivergenceError, Trainer  # noqa: E402
 
 torch.set_num_threads(1)
 FLOCK = get_scenario("flock2d")

@@ -9,7 +9,7 @@ import copy
 import math
 import os
 from dataclasses import fields
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, get_scenario
 
@@ -196,3 +196,15 @@ def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[s
 
 def build_policy(cfg: Dict[str, Any]) -> KNODEPolicy:
     return KNODEPolicy(PolicyConfig(cfg["scenario"], **cfg["policy"]))
+
+
+def parse_overrides(items: Optional[List[str]]) -> Dict[str, Any]:
+    """``["section.key=value", ...]`` (the ``--set`` options) as ``{"section.key": value}``, values read as YAML."""
+    import yaml
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+        out[key] = yaml.safe_load(value)
+    return out

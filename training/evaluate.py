@@ -27,11 +27,11 @@ import numpy as np
 import torch
 
 from knode_swarm_ros.core import (PolicyError, TrajectoryError, amd, avd, get_scenario, load_policy,
-                                  load_trajectories, pod_energy, rollout)
+                                  load_trajectories, pod_energy)
 
 from . import figures
 from .records import write_json
-from .scores import final_metrics
+from .scores import final_metrics, rollout_policy
 from .stats import describe
 from .period import period_ratio, subsample
 
@@ -40,11 +40,6 @@ GOALS = {
     "flock2d": "mean final avd <= 0.05; mean final amd within 15% of ground truth; min distance after 1 s > 0.3",
     "boids3d": "final amd within 25% of ground truth; mean POD-KLD <= 0.05; >= 18 of 20 rollouts stay in the cube",
 }
-
-
-def rollout_policy(policy, z0: np.ndarray, steps: int) -> np.ndarray:
-    with np.errstate(all="ignore"):
-        return rollout(policy, z0, steps, policy.scenario, policy.d_cr, policy.k, policy.tau, policy.dt)
 
 
 def goal_check(scenario: str, fm: Dict[str, Any]) -> Dict[str, Any]:

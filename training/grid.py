@@ -30,10 +30,10 @@ from knode_swarm_ros.core import TrajectoryError, get_scenario, load_policy
 from . import figures
 from .config import ConfigError
 from .records import write_json
-from .scores import final_metrics
-from .evaluate import rollout_policy
-from .train import DataError, DivergenceError, Trainer, _parse_set
+from .scores import final_metrics, rollout_policy
+from .trainer import DataError, DivergenceError, Trainer
 from .config import load_config
+from .config import parse_overrides as _parse_set
 
 
 def cell_name(d_cr: float, k: int) -> str:

@@ -140,7 +140,7 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
     """
     from knode_swarm_ros.core.groundtruth import simulate
     if rollout_fn is None:
-        from .evaluate import rollout_policy as rollout_fn
+        from .scores import rollout_policy as rollout_fn
     spec = get_scenario("boids3d")
     if policy.scenario != "boids3d":
         raise ValueError(f"scaling3d needs a boids3d policy, got {policy.scenario}")

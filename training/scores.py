@@ -69,6 +69,12 @@ def selection_score(spec: Scenario, m: Dict[str, Any]) -> float:
     return float(score) if np.isfinite(score) else float("inf")
 
 
+def rollout_policy(policy, z0: np.ndarray, steps: int) -> np.ndarray:
+    """Roll a loaded policy out from ``z0 [S, n, d]`` for ``steps`` steps with its own network settings."""
+    with np.errstate(all="ignore"):
+        return rollout(policy, z0, steps, policy.scenario, policy.d_cr, policy.k, policy.tau, policy.dt)
+
+
 def rollout_module(module: nn.Module, spec: Scenario, z0: np.ndarray, steps: int, cfg_policy: Dict[str, Any],
                    dt: float) -> np.ndarray:
     """Roll a (not yet exported) policy module out with the canonical :func:`core.rollout`."""

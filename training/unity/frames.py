@@ -10,7 +10,7 @@ Shapes: T frames, n boids, rows (x, y, z, hx, hy, hz).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Dict, Optional, Sequence
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
