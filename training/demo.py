@@ -21,7 +21,7 @@ import torch
 from knode_swarm_ros.core import PolicyError, save_trajectories, shipped_policy_path
 from knode_swarm_ros.core.groundtruth import simulate
 
-from .evaluate import evaluate
+from .evaluation import evaluate
 
 
 def main(argv: Optional[List[str]] = None) -> int:

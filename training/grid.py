@@ -58,7 +58,7 @@ def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts:
     """Metrics of a cell's policy: ``rollouts`` rollouts from each of the first ``trajectories`` test
     starts (:func:`perturbed_starts`) over ``steps`` steps (default: the test trajectories' length),
     each compared with its start's ground truth. boids3d adds
-    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling3d`."""
+    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling`."""
     from knode_swarm_ros.core import load_trajectories
     policy = load_policy(policy_path)
     spec = get_scenario(policy.scenario)
@@ -69,7 +69,7 @@ def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts:
     pred = rollout_policy(policy, z0, truth.shape[1] - 1)
     truth = np.repeat(truth, rollouts, axis=0)
     if spec.name == "boids3d":
-        from .scaling3d import size_metrics
+        from .scaling import size_metrics
         return size_metrics(pred, truth, policy.dt)
     return final_metrics(spec, pred, truth, dt=policy.dt)
 
