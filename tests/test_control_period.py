@@ -206,7 +206,7 @@ def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(
            'selection': {'every': 1, 'trajectories': 1}}
     trainer = Trainer(normalise_config(raw), data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
     seen = {}
-    import training.train as train_module
+    import training.trainer as train_module
     real = train_module.rollout_module
 
     def spy(module, spec, z0, steps, cfg_policy, dt):
