@@ -29,7 +29,9 @@ def child(method: str, robots: int, batches: int, batch_size: int) -> dict:
     sys.path.insert(0, ROOT)
     from knode_swarm_ros.core import get_scenario
     from knode_swarm_ros.core.groundtruth import simulate
-    from training.common import load_config, build_policy, make_samples, predict_next, loss_scales, one_step_loss
+    from training.config import build_policy, load_config
+    from training.samples import make_samples
+    from training.objectives import loss_scales, one_step_loss, predict_next
     cfg = load_config(os.path.join(ROOT, "config", "train_flock2d.yaml"))
     spec = get_scenario("flock2d")
     states = simulate("flock2d", 2, robots, 200, seed=0, progress=False)
@@ -62,7 +64,9 @@ def gradient_agreement() -> dict:
     sys.path.insert(0, ROOT)
     from knode_swarm_ros.core import get_scenario
     from knode_swarm_ros.core.groundtruth import simulate
-    from training.common import load_config, build_policy, make_samples, predict_next, loss_scales, one_step_loss
+    from training.config import build_policy, load_config
+    from training.samples import make_samples
+    from training.objectives import loss_scales, one_step_loss, predict_next
     cfg = load_config(os.path.join(ROOT, "config", "train_flock2d.yaml"))
     spec = get_scenario("flock2d")
     s = make_samples(simulate("flock2d", 1, 10, 100, seed=1, progress=False), spec, 5.0, 6, 0)

@@ -1,4 +1,6 @@
-"""training.compare_unity: frame-time recovery, tie margins, pair statistics and the CLI end to end."""
+"""training.compare_unity and the training.unity libraries: frame-time recovery, tie margins, pair
+statistics and the CLI end to end."""
+import dataclasses
 import json
 
 import numpy as np
@@ -8,6 +10,8 @@ from knode_swarm_ros.core.groundtruth import boids as gt_boids
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.metrics import pod_kld
 from training import compare_unity as cu
+from training.unity import frames as uf
+from training.unity import statistics as us
 
 PUBLISHED = gt_boids.get_preset("published")
 
@@ -20,21 +24,21 @@ def unity_like_run(seed, n, frames, rng_dt):
     dt = np.where(rng_dt.random(frames - 1) < 0.3, rng_dt.uniform(1.0, 2.7, frames - 1), 1.0) / 60
     out = [gt_boids.observe(p, v)[0]]
     for t in range(frames - 1):
-        p, v = gt_boids.boids_step(p, v, cu.dataclasses.replace(PUBLISHED, dt=float(dt[t])))
+        p, v = gt_boids.boids_step(p, v, dataclasses.replace(PUBLISHED, dt=float(dt[t])))
         out.append(gt_boids.observe(p, v)[0])
     return np.stack(out), dt
 
 
 def test_frame_times_are_recovered_and_the_model_reproduces_its_own_runs():
     states, dt = unity_like_run(3, 6, 120, np.random.default_rng(0))
-    est, res = cu.estimate_frame_times(states[10:])
+    est, res = uf.estimate_frame_times(states[10:])
     true = dt[10:]
     # Without the spawn, dt(0) is only bounded from above; after a few frames the fit is exact.
     assert np.isnan(res[0]).all()
     np.testing.assert_allclose(est[5:], true[5:], rtol=1e-6)
     assert np.max(res[5:]) < 1e-6
     # From the spawn (every speed (5 + 8) / 2), every frame time is fitted.
-    est, res = cu.estimate_frame_times(states, initial_speed=6.5)
+    est, res = uf.estimate_frame_times(states, initial_speed=6.5)
     np.testing.assert_allclose(est, dt, rtol=1e-6)
     assert np.max(res) < 1e-6
     # The frame times matter: a fixed 1/60 is far off on the long frames.
@@ -44,41 +48,41 @@ def test_frame_times_are_recovered_and_the_model_reproduces_its_own_runs():
 def test_replay_at_nominal_frame_times_is_simulate():
     frames = 30
     ours = simulate("boids3d", 4, 5, frames, seed=7, preset="published", progress=False)
-    replay = cu.simulate_with_frame_times(4, 5, frames, 7, [np.full(frames - 1, 1 / 60), np.full(frames, 1 / 60)])
+    replay = uf.simulate_with_frame_times(4, 5, frames, 7, [np.full(frames - 1, 1 / 60), np.full(frames, 1 / 60)])
     np.testing.assert_array_equal(replay, ours)
     with pytest.raises(ValueError, match="frame_times"):
-        cu.simulate_with_frame_times(2, 5, frames, 7, [np.full(3, 1 / 60)])
+        uf.simulate_with_frame_times(2, 5, frames, 7, [np.full(3, 1 / 60)])
 
 
 def test_decision_margins_find_ties_at_the_radii():
-    params = cu.dataclasses.replace(PUBLISHED, box=20.0)     # walls far away: only the radii decide
+    params = dataclasses.replace(PUBLISHED, box=20.0)     # walls far away: only the radii decide
     frame = np.array([[-1.0, 0, 0, 0, 1, 0], [1.0, 0, 0, 0, 1, 0]])
-    np.testing.assert_allclose(cu.decision_margins(frame, params), [0.5, 0.5])   # |2 - 2.5|, |2 - 1| = 1
+    np.testing.assert_allclose(uf.decision_margins(frame, params), [0.5, 0.5])   # |2 - 2.5|, |2 - 1| = 1
     frame[1, 0] = -1.0 + 2.5 + 1e-7                                           # at the perception radius
-    assert np.all(cu.decision_margins(frame, params) < cu.TIE_MARGIN)
+    assert np.all(uf.decision_margins(frame, params) < uf.TIE_MARGIN)
     frame[1, 0] = -1.0 + 1.0 - 1e-7                                           # at the avoidance radius
-    assert np.all(cu.decision_margins(frame, params) < cu.TIE_MARGIN)
+    assert np.all(uf.decision_margins(frame, params) < uf.TIE_MARGIN)
     # Heading straight at a near wall: neither the sweep test nor the candidates up to the first clear one tie.
     wall = np.array([[4.0, 0, 0, 1, 0, 0], [-4.0, 0, 0, -1, 0, 0]])
-    assert np.all(cu.decision_margins(wall, PUBLISHED) > cu.TIE_MARGIN)
+    assert np.all(uf.decision_margins(wall, PUBLISHED) > uf.TIE_MARGIN)
 
 
 def test_pod_kld_pairs_agree_with_the_metric():
     rng = np.random.default_rng(1)
     a, b = rng.normal(size=(3, 20, 4, 6)), rng.normal(size=(2, 20, 4, 6))
-    pairs = cu.pod_kld_pairs(a, b)
+    pairs = us.pod_kld_pairs(a, b)
     assert pairs.shape == (6,)
     np.testing.assert_allclose(pairs, [pod_kld(x, y) for x in a for y in b], rtol=1e-12)
-    own = cu.pod_kld_pairs(np.stack([a[0], a[0]]))
+    own = us.pod_kld_pairs(np.stack([a[0], a[0]]))
     np.testing.assert_allclose(own, [0.0, 0.0], atol=1e-15)
 
 
 def test_compare_groups():
     rng = np.random.default_rng(2)
     ref = rng.normal(0.0, 1.0, 6)
-    same = cu.compare_groups(ref, ref)
+    same = us.compare_groups(ref, ref)
     assert same["diff"] == 0 and same["p_welch"] == pytest.approx(1.0)
-    shifted = cu.compare_groups(ref, rng.normal(5.0, 1.0, 30))
+    shifted = us.compare_groups(ref, rng.normal(5.0, 1.0, 30))
     assert shifted["p_welch"] < 0.01 and shifted["diff_over_spread"] > 2
 
 
@@ -91,12 +95,12 @@ def test_run_statistics_of_a_known_run():
     run[:, 0, 1], run[:, 1, 1] = -1.0, 1.0
     run[:, 0, 2] = run[:, 1, 2] = 3.5
     run[..., 3] = 1.0
-    s = cu.run_statistics(run)
+    s = us.run_statistics(run)
     assert s["speed_mean"] == pytest.approx(6.0) and s["speed_above_max"] == 0.0
     assert s["alignment"] == pytest.approx(1.0) and s["flockmates"] == 1.0 and s["isolated"] == 0.0
     assert s["subgroups_mean"] == 1.0 and s["amd_mean"] == pytest.approx(2.0)
     assert s["wall_distance"] == pytest.approx(1.5) and s["near_wall"] == 0.0
-    slow = cu.run_statistics(run, frame_times=np.full(T - 1, 2 / 60))       # the same path in twice the time
+    slow = us.run_statistics(run, frame_times=np.full(T - 1, 2 / 60))       # the same path in twice the time
     assert slow["true_speed_mean"] == pytest.approx(3.0)
 
 

@@ -104,7 +104,7 @@ def _line_swarm(T=6):
 
 def test_period_samples_against_a_hand_built_example():
     pytest.importorskip('torch')
-    from training.common import make_samples
+    from training.samples import make_samples
     states = _line_swarm()
     # ratio 2 (policy dt = 2 frames), tau 1 policy step = 2 frames of delay, every start frame
     s = make_samples(states, FLOCK, d_cr=10.0, k=3, tau=1, stride=1, ratio=2)
@@ -173,8 +173,8 @@ def _held_teacher_data(tmp_path, hold=5, steps=40, trajectories=5, n=6, seed=0):
 def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path):
     torch = pytest.importorskip('torch')
     from knode_swarm_ros.core import load_policy
-    from training.common import normalise_config
-    from training.train import Trainer
+    from training.config import normalise_config
+    from training.trainer import Trainer
     torch.set_num_threads(1)
     data, linear = _held_teacher_data(tmp_path)
     raw = {'scenario': 'flock2d', 'seed': 3, 'policy': {'hidden': 32, 'd_cr': 3.0, 'k': 4, 'collision': False},
@@ -197,15 +197,16 @@ def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path
 
 def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(tmp_path, capsys):
     pytest.importorskip('torch')
-    from training.common import normalise_config
-    from training.train import Trainer, main as train_main
+    from training.config import normalise_config
+    from training.train import main as train_main
+    from training.trainer import Trainer
     data, _ = _held_teacher_data(tmp_path, steps=8)      # 41 frames at 0.01 s
     raw = {'scenario': 'flock2d', 'seed': 3, 'policy': {'hidden': 8, 'd_cr': 3.0, 'k': 4},
            'data': {'val_trajectories': 1, 'policy_dt': 0.05}, 'training': {'epochs': 1, 'threads': 1},
            'selection': {'every': 1, 'trajectories': 1}}
     trainer = Trainer(normalise_config(raw), data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
     seen = {}
-    import training.train as train_module
+    import training.trainer as train_module
     real = train_module.rollout_module
 
     def spy(module, spec, z0, steps, cfg_policy, dt):
@@ -234,7 +235,7 @@ def test_shipped_20hz_policy_rolls_out_at_dt_005_from_held_out_starts():
     pytest.importorskip('torch')
     from knode_swarm_ros.core import amd, avd, load_policy, rollout, shipped_policy_path
     from knode_swarm_ros.core.groundtruth.tanner import initial_states
-    from training.common import min_pair_distance
+    from knode_swarm_ros.core.geometry import min_pair_distance
     policy = load_policy(shipped_policy_path('flock2d_20hz'), expect={'scenario': 'flock2d', 'dt': 0.05})
     prov = policy.meta['provenance']
     assert prov['data_dt'] == 0.01 and prov['dt_ratio'] == 5 and prov['config']['data']['policy_dt'] == 0.05

@@ -11,10 +11,11 @@ from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, get_scena
                                   save_trajectories)
 from knode_swarm_ros.core.network import neighbour_matrix_torch
 from knode_swarm_ros.core.rollout import rollout_torch
-from training.common import ConfigError, loss_scales, normalise_config
+from training.config import ConfigError, normalise_config
+from training.objectives import loss_scales
 from training.multistep import (Windows, augment_windows, horizon_at, rollout_windows, window_loss,
                                 window_scales)
-from training.train import Trainer
+from training.trainer import Trainer
 
 torch.set_num_threads(1)
 FLOCK = get_scenario("flock2d")

@@ -27,7 +27,8 @@ pytest.importorskip('onnx')
 from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, PolicyError, export_policy,  # noqa: E402
                                   load_policy, load_runtime, rollout, shipped_policy_path)
 from knode_swarm_ros.core.policy_runtime import load_onnx_policy  # noqa: E402
-from training.export_onnx import check_inputs, compare, export_onnx, main as export_main  # noqa: E402
+from training.export_onnx import main as export_main  # noqa: E402
+from training.onnx_twin import check_inputs, compare, export_onnx  # noqa: E402
 
 torch.set_num_threads(1)
 REPO = Path(__file__).resolve().parents[1]

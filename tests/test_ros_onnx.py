@@ -33,7 +33,7 @@ BLOCKER = textwrap.dedent('''
 
 
 def test_lockstep_swarm_on_onnxruntime_without_torch(tmp_path, untrained_policies):
-    from training.export_onnx import export_onnx
+    from training.onnx_twin import export_onnx
     pt = tmp_path / 'flock2d.pt'
     pt.write_bytes(untrained_policies['flock2d'].read_bytes())
     export_onnx(pt)

@@ -13,7 +13,7 @@ pytest.importorskip("matplotlib")
 from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy, save_trajectories  # noqa: E402
 from knode_swarm_ros.core.groundtruth import simulate  # noqa: E402
 from training.boids_stats import group_labels, subgroups  # noqa: E402
-from training.scaling3d import (escape_events, escaped, goal_check, outside, subswarm_count,  # noqa: E402
+from training.scaling import (escape_events, escaped, goal_check, outside, subswarm_count,  # noqa: E402
                                 summary_lines)
 
 BOX = 5.0

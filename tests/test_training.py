@@ -13,9 +13,12 @@ import yaml
 
 from knode_swarm_ros.core import (KNODEPolicy, PolicyConfig, get_scenario, load_policy, load_runtime, rollout,  # noqa: E402
                                   save_trajectories, zoh_step)
-from training.common import (ConfigError, build_policy, implied_command, loss_scales, make_samples,  # noqa: E402
-                             module_policy_fn, normalise_config, one_step_loss, predict_next)
-from training.train import DivergenceError, Trainer, main as train_main  # noqa: E402
+from training.config import ConfigError, build_policy, normalise_config  # noqa: E402
+from training.objectives import loss_scales, one_step_loss, predict_next  # noqa: E402
+from training.samples import implied_command, make_samples  # noqa: E402
+from training.scores import module_policy_fn  # noqa: E402
+from training.train import main as train_main  # noqa: E402
+from training.trainer import DivergenceError, Trainer  # noqa: E402
 
 torch.set_num_threads(1)
 FLOCK = get_scenario("flock2d")

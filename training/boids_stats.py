@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from knode_swarm_ros.core import amd, pod_energy
+from knode_swarm_ros.core.geometry import pair_distances
 
 __all__ = ["speeds", "flockmates", "alignment", "group_labels", "subgroups", "wall_distance", "summary"]
 
@@ -17,12 +18,7 @@ BOX = 5.0
 
 
 def _pairs(states: np.ndarray) -> np.ndarray:
-    p = states[..., :3]
-    diff = p[..., :, None, :] - p[..., None, :, :]
-    dist = np.sqrt(np.sum(diff * diff, axis=-1))
-    n = dist.shape[-1]
-    dist[..., np.arange(n), np.arange(n)] = np.inf
-    return dist
+    return pair_distances(states[..., :3])
 
 
 def speeds(states: np.ndarray, dt: float) -> np.ndarray:

@@ -29,17 +29,12 @@ from knode_swarm_ros.core.groundtruth.tanner import local_tanner_acceleration
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 
-from .common import final_metrics, mean_ci, write_json
+from .records import write_json
+from .scores import final_metrics
+from .stats import describe
 from .kernel_baseline import fit_kernel
 
 METRICS = ("avd_final", "amd_final", "min_distance")
-
-
-def _stats(v: Sequence[float]) -> Dict[str, float]:
-    a = np.asarray(v, dtype=np.float64)
-    mean, half = mean_ci(a[:, None])
-    return {"mean": float(mean[0]), "ci95": float(half[0]), "median": float(np.median(a)),
-            "min": float(a.min()), "max": float(a.max())}
 
 
 def controllers(policies: Dict[str, str], data_path: str, kernel_stride: int = 4, log=print
@@ -80,7 +75,7 @@ def compare(policies: Dict[str, str], data_path: str, out: str, sizes: Sequence[
         fm_truth = final_metrics(spec, truth, dt=net["dt"])
         per_run[str(n)] = {"ground_truth": {m: fm_truth[m] for m in METRICS}}
         rows.append({"robots": n, "starts": count, "controller": "ground_truth",
-                     **{m: _stats(fm_truth[m]) for m in METRICS}})
+                     **{m: describe(fm_truth[m]) for m in METRICS}})
         for name, fn in c["controllers"].items():
             t0 = time.perf_counter()
             with np.errstate(all="ignore"):
@@ -88,7 +83,7 @@ def compare(policies: Dict[str, str], data_path: str, out: str, sizes: Sequence[
             fm = final_metrics(spec, pred, truth, dt=net["dt"])
             per_run[str(n)][name] = {m: fm[m] for m in METRICS}
             row = {"robots": n, "starts": count, "controller": name, "seconds": round(time.perf_counter() - t0, 1),
-                   **{m: _stats(fm[m]) for m in METRICS},
+                   **{m: describe(fm[m]) for m in METRICS},
                    "amd_rel_error": abs(np.mean(fm["amd_final"]) - np.mean(fm_truth["amd_final"]))
                    / np.mean(fm_truth["amd_final"])}
             rows.append(row)

@@ -28,12 +28,11 @@ default ``--out``). Exit status 0 ok, 2 bad input (the message names file and li
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
 import time
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -43,264 +42,16 @@ from knode_swarm_ros.core.metrics import amd, pod_energy
 from knode_swarm_ros.core.cli import cli
 
 from .boids_stats import alignment, flockmates, speeds, subgroups, wall_distance
-from .import_unity import UnityFormatError, read_recording
+from .stats import describe
+from .unity.frames import MISMATCH, NOMINAL_DT, PRESET, model_check, simulate_with_frame_times
+from .unity.recordings import UnityFormatError, read_recording
+from .unity.statistics import STATS, compare_groups, pod_kld_pairs, run_statistics
 
-__all__ = ["estimate_frame_times", "decision_margins", "simulate_with_frame_times", "run_statistics",
-           "compare_groups", "pod_kld_pairs", "compare", "main", "NOMINAL_DT", "TIE_MARGIN"]
+__all__ = ["compare", "write_summary", "main"]
 
-NOMINAL_DT = 1.0 / 60.0
-#: A one-step residual above this (relative to the frame's displacement) counts as a mismatch.
-MISMATCH = 1e-3
-#: A decision (sweep or radius test) this close to its threshold is a tie that float32 may flip.
-TIE_MARGIN = 1e-4
-PRESET = "published"
 GROUPS = ("unity", "ours", "ours_unity_dt")
 LABELS = {"unity": "Unity recordings", "ours": "ours, dt = 1/60", "ours_unity_dt": "ours, Unity frame times"}
 COLOURS = {"unity": "tab:blue", "ours": "tab:red", "ours_unity_dt": "tab:orange"}
-
-
-# --------------------------------------------------------------------------- frame times
-
-
-def _predicted_displacement(v: np.ndarray, a: np.ndarray, dt: np.ndarray, params) -> np.ndarray:
-    """(v + a dt) speed-clamped, times dt; ``dt`` broadcasts against ``v [..., n, 3]``."""
-    vn = v + a * dt
-    s = np.linalg.norm(vn, axis=-1, keepdims=True)
-    ok = s > 0
-    vn = np.where(ok, vn / np.where(ok, s, 1.0), 0.0) * np.clip(s, params.min_speed, params.max_speed)
-    return vn * dt
-
-
-def estimate_frame_times(states: np.ndarray, params=None, initial_speed: Optional[float] = None,
-                         grid: int = 41, levels: int = 6) -> Tuple[np.ndarray, np.ndarray]:
-    """Unity's frame times of one recording ``[T, n, 6]`` and the one-step model residuals.
-
-    Frame t is stepped with our boids update for a candidate dt(t) from velocities
-    v(t) = h(t) |p(t) - p(t-1)| / dt(t-1); dt(t) is the candidate (nested grids between the
-    bounds that keep every speed within [min_speed, max_speed]) that best reproduces the
-    displacements to frame t + 1. Frame 0 has no predecessor: with ``initial_speed`` (a
-    recording that starts at the spawn, where Unity sets every speed to (min + max) / 2),
-    v(0) = h(0) initial_speed and dt(0) is fitted like the others; otherwise dt(0) takes its
-    upper bound (exact when a boid sits at the minimum speed) and later frames correct it.
-
-    Returns:
-        ``dt [T - 1]`` (seconds, dt[t] moves frame t to t + 1) and ``residual [T - 1, n]``:
-        |predicted - recorded displacement| / |recorded displacement| of frame t + 1 predicted
-        from frame t (row 0 is NaN without ``initial_speed``).
-    """
-    params = gt_boids.get_preset(PRESET) if params is None else params
-    p, h = states[..., :3], states[..., 3:]
-    d = np.diff(p, axis=0)
-    dist = np.linalg.norm(d, axis=-1)
-    if np.any(dist <= 0):
-        raise ValueError("a boid did not move between two frames; frame times cannot be estimated")
-    lo_all = dist.max(axis=1) / params.max_speed
-    hi_all = np.maximum(dist.min(axis=1) / params.min_speed, lo_all)
-    T1 = d.shape[0]
-    dt = np.empty(T1)
-    residual = np.full((T1, p.shape[1]), np.nan)
-    u = np.linspace(0.0, 1.0, grid)
-    for t in range(T1):
-        if t == 0:
-            if initial_speed is None:
-                dt[0] = hi_all[0]
-                continue
-            v = h[0] * float(initial_speed)
-        else:
-            v = h[t] * (dist[t - 1] / dt[t - 1])[:, None]
-        a = gt_boids.boids_acceleration(p[t], v, params)
-        lo, hi = lo_all[t], hi_all[t]
-        L, H = lo, hi
-        best = hi
-        for _ in range(levels):
-            cand = L + (H - L) * u
-            err = np.linalg.norm(_predicted_displacement(v, a, cand[:, None, None], params) - d[t], axis=-1).sum(1)
-            k = int(np.argmin(err))
-            best, step = cand[k], (H - L) / (grid - 1)
-            L, H = max(best - step, lo), min(best + step, hi)
-        dt[t] = best
-        residual[t] = np.linalg.norm(_predicted_displacement(v, a, best, params) - d[t], axis=-1) / dist[t]
-    return dt, residual
-
-
-def decision_margins(frame: np.ndarray, params=None) -> np.ndarray:
-    """Per boid of one frame ``[n, 6]``: the smallest distance of any discrete decision of
-    the boids update to its threshold (|distance - perception radius|, |distance - avoidance
-    radius|, the heading's sweep test, and the sweep tests of the golden-spiral candidates up to
-    the first clear one). Below :data:`TIE_MARGIN`, float32 (Unity) and float64 (ours) may
-    decide differently."""
-    params = gt_boids.get_preset(PRESET) if params is None else params
-    p, h = frame[:, :3], frame[:, 3:]
-    n = p.shape[0]
-    dist = np.linalg.norm(p[:, None] - p[None], axis=-1)
-    dist[np.arange(n), np.arange(n)] = np.inf
-    margin = np.minimum(np.abs(dist - params.perception_radius).min(1), np.abs(dist - params.avoidance_radius).min(1))
-    lo, hi = gt_boids._sweep_limits(p, params)
-    heading = np.minimum(hi - h, h - lo).min(-1)
-    margin = np.minimum(margin, np.abs(heading))
-    spiral = gt_boids.golden_spiral_directions(params.num_directions)
-    for i in np.flatnonzero(heading <= 0):
-        world = spiral @ gt_boids.look_rotation(h[i])
-        m = np.minimum(hi[i] - world, world - lo[i]).min(-1)
-        first = int(np.argmax(m > 0)) if np.any(m > 0) else len(m) - 1
-        margin[i] = min(margin[i], np.abs(m[: first + 1]).min())
-    return margin
-
-
-def model_check(full: np.ndarray, discard: int = 10, params=None) -> Dict[str, Any]:
-    """Frame times and one-step residuals of one whole recording ``[T, n, 6]`` (nothing discarded,
-    frame 0 = the spawn), reported from frame ``discard`` on, with the mismatches explained by
-    decision ties."""
-    params = gt_boids.get_preset(PRESET) if params is None else params
-    dt, res = estimate_frame_times(full, params, initial_speed=0.5 * (params.min_speed + params.max_speed))
-    kept = res[discard:]                         # residual row t predicts frame t + 1 from frame t
-    bad = np.argwhere(kept > MISMATCH)
-    ties = sum(1 for t, i in bad if decision_margins(full[t + discard], params)[i] < TIE_MARGIN)
-    dk = dt[discard:]
-    return {
-        "frame_time_x60_percentiles": dict(zip(["min", "p05", "p25", "p50", "p75", "p95", "max"],
-                                               np.percentile(dk * 60, [0, 5, 25, 50, 75, 95, 100]).round(4).tolist())),
-        "frames_longer_than_1.01/60": float(np.mean(dk * 60 > 1.01)),
-        "duration_s": float(dk.sum()),
-        "preroll_s": float(dt[:discard].sum()),
-        "preroll_frame_times_x60": (dt[:discard] * 60).round(3).tolist(),
-        "residual_percentiles": dict(zip(["p50", "p99", "p99.9", "max"],
-                                         np.percentile(kept, [50, 99, 99.9, 100]).tolist())),
-        "boid_frames": int(kept.size),
-        "mismatches": int(len(bad)),
-        "mismatches_at_ties": int(ties),
-        "_dt": dk,
-        "_preroll": dt[:discard],
-        "_residual": kept,
-    }
-
-
-# --------------------------------------------------------------------------- simulation
-
-
-def simulate_with_frame_times(runs: int, n: int, frames: int, seed: int, frame_times: Sequence[np.ndarray],
-                              params=None, preroll: Optional[Sequence[np.ndarray]] = None) -> np.ndarray:
-    """Our boids with the same spawns as :func:`simulate` (same seed) but stepped with given frame
-    times: run j replays ``frame_times[j % R]`` (dt of recorded frame 0, 1, ...; at least
-    ``frames - 1`` values) after the 10 discarded frames, which are stepped with ``preroll[j % R]``
-    (10 values; default 1/60 each).
-
-    Returns ``[runs, frames, n, 6]``.
-    """
-    params = gt_boids.get_preset(PRESET) if params is None else params
-    R = len(frame_times)
-    for k, seq in enumerate(frame_times):
-        if len(seq) < frames - 1:
-            raise ValueError(f"frame_times[{k}] holds {len(seq)} values, need {frames - 1}")
-    if preroll is None:
-        preroll = [np.full(gt_boids.DISCARD_FRAMES, NOMINAL_DT)] * R
-    if len(preroll) != R or any(len(x) != gt_boids.DISCARD_FRAMES for x in preroll):
-        raise ValueError(f"preroll needs {R} sequences of {gt_boids.DISCARD_FRAMES} frame times")
-    rng = np.random.default_rng(seed)
-    pos, vel = gt_boids.initial_boids(rng, runs, n, params)
-    out = np.empty((runs, frames, n, 6))
-    for g in range(R):
-        idx = np.arange(g, runs, R)
-        if idx.size == 0:
-            continue
-        p, v = pos[idx], vel[idx]
-        for dt in preroll[g]:
-            p, v = gt_boids.boids_step(p, v, dataclasses.replace(params, dt=float(dt)))
-        out[idx, 0] = gt_boids.observe(p, v)
-        for t in range(1, frames):
-            p, v = gt_boids.boids_step(p, v, dataclasses.replace(params, dt=float(frame_times[g][t - 1])))
-            out[idx, t] = gt_boids.observe(p, v)
-    return out
-
-
-# --------------------------------------------------------------------------- statistics
-
-STATS = {
-    # name: (description, unit)
-    "speed_mean": "mean speed from positions with dt = 1/60 (what a learner sees)",
-    "speed_p95": "95th percentile of that speed",
-    "speed_above_max": "fraction of boid-frames with that speed > 8.01 (max speed 8)",
-    "true_speed_mean": "mean speed with the actual frame times",
-    "true_speed_at_min": "fraction of boid-frames at the minimum speed 5 (actual frame times)",
-    "alignment": "mean cosine of heading with flockmates' headings (radius 2.5)",
-    "flockmates": "mean number of flockmates (radius 2.5)",
-    "isolated": "fraction of boid-frames without flockmates",
-    "subgroups_mean": "mean number of connected groups (radius 2.5)",
-    "subgroups_final": "mean number of groups over the last 50 frames",
-    "wall_distance": "mean distance to the nearest wall",
-    "near_wall": "fraction of boid-frames within 1 of a wall",
-    "amd_mean": "amd averaged over time",
-    "amd_final": "amd over the last 10 frames",
-    "pod_mode1": "energy share of the first POD mode (10 modes, paper's S)",
-}
-
-
-def run_statistics(run: np.ndarray, frame_times: Optional[np.ndarray] = None, modes: int = 10) -> Dict[str, float]:
-    """Scalar statistics of one run ``[T, n, 6]``; ``frame_times [T - 1]`` (default 1/60) give true speeds."""
-    s = speeds(run, NOMINAL_DT)
-    dt = np.full(run.shape[0] - 1, NOMINAL_DT) if frame_times is None else np.asarray(frame_times)[: run.shape[0] - 1]
-    true = s * NOMINAL_DT / dt[:, None]
-    fm = flockmates(run)
-    wd = wall_distance(run)
-    a = amd(run[..., :3])
-    groups = subgroups(run)
-    al = alignment(run)
-    al = al[np.isfinite(al)]
-    return {
-        "speed_mean": float(s.mean()),
-        "speed_p95": float(np.percentile(s, 95)),
-        "speed_above_max": float(np.mean(s > 8.01)),
-        "true_speed_mean": float(true.mean()),
-        "true_speed_at_min": float(np.mean(true < 5.001)),
-        "alignment": float(al.mean()) if al.size else float("nan"),
-        "flockmates": float(fm.mean()),
-        "isolated": float(np.mean(fm == 0)),
-        "subgroups_mean": float(groups.mean()),
-        "subgroups_final": float(groups[-50:].mean()),
-        "wall_distance": float(wd.mean()),
-        "near_wall": float(np.mean(wd < 1.0)),
-        "amd_mean": float(a.mean()),
-        "amd_final": float(a[-10:].mean()),
-        "pod_mode1": float(pod_energy(run, modes)[0]),
-    }
-
-
-def compare_groups(reference: Sequence[float], other: Sequence[float]) -> Dict[str, float]:
-    """Welch's t-test of per-run values, and the difference in units of the reference's run-to-run spread."""
-    from scipy import stats as sps
-    r, o = np.asarray(reference, float), np.asarray(other, float)
-    diff = float(o.mean() - r.mean())
-    spread = float(r.std(ddof=1)) if r.size > 1 else 0.0
-    if r.size > 1 and o.size > 1 and (r.std() > 0 or o.std() > 0):
-        import warnings
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)    # nearly identical samples
-            p = float(sps.ttest_ind(o, r, equal_var=False).pvalue)
-    else:
-        p = float("nan") if diff == 0 else 0.0
-    return {"diff": diff, "rel_diff": diff / abs(r.mean()) if r.mean() != 0 else float("nan"),
-            "diff_over_spread": diff / spread if spread > 0 else float("nan"), "p_welch": p}
-
-
-def _kl(p: np.ndarray, q: np.ndarray, eps: float = 1e-12) -> float:
-    support = p > 0
-    return float(np.sum(p[support] * np.log(p[support] / np.maximum(q[support], eps))))
-
-
-def pod_kld_pairs(truth: np.ndarray, predicted: Optional[np.ndarray] = None, modes: int = 10) -> np.ndarray:
-    """KL(truth_i || predicted_j) of POD energies (as :func:`pod_kld`) over all pairs; without
-    ``predicted``, truth against itself with i != j."""
-    et = [pod_energy(x, modes) for x in truth]
-    if predicted is None:
-        return np.array([_kl(et[i], et[j]) for i in range(len(et)) for j in range(len(et)) if i != j])
-    ep = [pod_energy(x, modes) for x in predicted]
-    return np.array([_kl(a, b) for a in et for b in ep])
-
-
-def _describe(x: np.ndarray) -> Dict[str, float]:
-    x = np.asarray(x, float)
-    return {"mean": float(x.mean()), "std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-            "median": float(np.median(x)), "min": float(x.min()), "max": float(x.max()), "count": int(x.size)}
 
 
 # --------------------------------------------------------------------------- figures
@@ -528,7 +279,7 @@ def compare(unity_files: Sequence[str], out: str, runs: int = 30, seed: int = 0,
         log(f"wrote {save_runs}")
     stats = {g: [run_statistics(run, frame_times[g][j % len(frame_times[g])]) for j, run in enumerate(data[g])]
              for g in data}
-    summary = {g: {k: _describe([s[k] for s in stats[g]]) for k in STATS} for g in data}
+    summary = {g: {k: describe([s[k] for s in stats[g]]) for k in STATS} for g in data}
     comparison = {g: {k: compare_groups([s[k] for s in stats["unity"]], [s[k] for s in stats[g]]) for k in STATS}
                   for g in data if g != "unity"}
     pod = {g: np.stack([pod_energy(run, 10) for run in data[g]]) for g in data}
@@ -546,7 +297,7 @@ def compare(unity_files: Sequence[str], out: str, runs: int = 30, seed: int = 0,
                   "model_check": [{k: v for k, v in c.items() if not k.startswith("_")} for c in checks]},
         "statistics": summary, "per_run": stats, "comparison": comparison,
         "pod_energy": {g: {"mean": pod[g].mean(0).tolist(), "std": pod[g].std(0).tolist()} for g in pod},
-        "pod_kld": {k: _describe(v) for k, v in kld.items()},
+        "pod_kld": {k: describe(v) for k, v in kld.items()},
         "statistics_legend": STATS,
     }
     os.makedirs(out, exist_ok=True)

@@ -23,7 +23,7 @@ from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import RunError
 from knode_swarm_ros.core.groundtruth import simulate
 
-from .evaluate import evaluate
+from .evaluation import evaluate
 
 
 @cli("python -m training.demo")

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .common import mean_ci  # noqa: E402
+from .stats import mean_ci  # noqa: E402
 
 PRED_COLOUR, TRUE_COLOUR = "tab:red", "tab:blue"
 

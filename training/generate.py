@@ -26,6 +26,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from knode_swarm_ros import __version__
+from knode_swarm_ros.core.geometry import min_pair_distance
 from knode_swarm_ros.core.groundtruth import parameters, presets, simulate
 from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.core.trajectory import save_trajectories
@@ -134,10 +135,7 @@ CLOSE_START = 0.1
 def flock2d_diagnostics(states: np.ndarray) -> dict:
     """Per trajectory: the closest initial pair distance and the largest speed over the run."""
     p = states[:, 0, :, :2]
-    d = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=-1)
-    n = p.shape[1]
-    d[:, np.arange(n), np.arange(n)] = np.inf
-    closest = d.min(axis=(1, 2))
+    closest = min_pair_distance(p)
     speed = np.linalg.norm(states[..., 2:4], axis=-1).max(axis=(1, 2))
     return {"initial_min_distance": [round(float(x), 6) for x in closest],
             "max_speed": [round(float(x), 6) for x in speed]}

@@ -30,10 +30,10 @@ from knode_swarm_ros.core.cli import cli, parse_set
 from knode_swarm_ros.core.errors import KnodeError
 
 from . import figures
-from .common import final_metrics, write_json
-from .evaluate import rollout_policy
-from .train import DivergenceError, Trainer
-from .common import load_config
+from .config import load_config
+from .records import write_json
+from .scores import final_metrics, rollout_policy
+from .trainer import DivergenceError, Trainer
 
 
 def cell_name(d_cr: float, k: int) -> str:
@@ -58,7 +58,7 @@ def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts:
     """Metrics of a cell's policy: ``rollouts`` rollouts from each of the first ``trajectories`` test
     starts (:func:`perturbed_starts`) over ``steps`` steps (default: the test trajectories' length),
     each compared with its start's ground truth. boids3d adds
-    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling3d`."""
+    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling`."""
     from knode_swarm_ros.core import load_trajectories
     policy = load_policy(policy_path)
     spec = get_scenario(policy.scenario)
@@ -69,7 +69,7 @@ def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts:
     pred = rollout_policy(policy, z0, truth.shape[1] - 1)
     truth = np.repeat(truth, rollouts, axis=0)
     if spec.name == "boids3d":
-        from .scaling3d import size_metrics
+        from .scaling import size_metrics
         return size_metrics(pred, truth, policy.dt)
     return final_metrics(spec, pred, truth, dt=policy.dt)
 

@@ -205,7 +205,7 @@ def load_init_state(path: str) -> Dict[str, Tensor]:
 
 
 class MultiStepObjective:
-    """Batches and loss of the ``multi_step`` objective, for :class:`training.train.Trainer`.
+    """Batches and loss of the ``multi_step`` objective, for :class:`training.trainer.Trainer`.
 
     ``batches(epoch, g)`` returns the window starts of one epoch (batches of
     ``multistep.batch_windows``) at the curriculum's horizon; ``loss(policy, starts, g)`` rolls

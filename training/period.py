@@ -3,7 +3,7 @@
 A swarm recorded at 100 Hz (dt 0.01 s) can train a policy for 20 Hz control (dt 0.05 s):
 the policy dt is ``ratio`` data frames, the one-step-ahead pairs go from frame t to frame
 t + ratio (the zero-order hold of one command over the longer period), neighbour delays in
-policy steps become ``tau * ratio`` frames (:func:`training.common.make_samples` with
+policy steps become ``tau * ratio`` frames (:func:`training.samples.make_samples` with
 ``ratio``), and the selection rollouts compare with the data subsampled to every ratio-th
 frame (:func:`subsample`).
 """

@@ -28,7 +28,7 @@ from knode_swarm_ros.core import avd, amd, get_scenario, load_policy, load_traje
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 
-from .common import write_json
+from .records import write_json
 
 LAST = 10   # frames averaged for the final metrics (as training.evaluate)
 

@@ -26,6 +26,7 @@ from typing import Any, Callable, Dict, List, Optional
 import numpy as np
 
 from knode_swarm_ros.core import PolicyError, amd, avd, load_policy
+from knode_swarm_ros.core import geometry
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
@@ -60,11 +61,7 @@ def interval(values: np.ndarray) -> Dict[str, float]:
 
 def min_pair_distance(states: np.ndarray) -> np.ndarray:
     """Smallest distance between two robots over a run, ``states [S, T, n, 4]`` -> ``[S]``."""
-    p = states[..., :2]
-    d = np.sqrt(np.sum((p[:, :, :, None] - p[:, :, None, :]) ** 2, axis=-1))
-    n = d.shape[-1]
-    d[..., np.arange(n), np.arange(n)] = np.inf
-    return d.min(axis=(1, 2, 3))
+    return geometry.min_pair_distance(states[..., :2]).min(axis=1)
 
 
 def run(policy_path: str, out: str, starts: int = 12, robots: int = 10, steps: int = 1000, seed: int = 2026,

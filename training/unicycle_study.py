@@ -23,6 +23,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from knode_swarm_ros.core import PolicyError, amd, avd, load_policy, rollout
+from knode_swarm_ros.core.geometry import min_pair_distance
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
@@ -82,12 +83,10 @@ def run(policy_path: str, out: str, starts: int = 10, robots: int = 10, steps: i
         states = di if lim is None else unicycle_rollout(policy, z0, steps, lim, policy.d_cr, policy.k, policy.dt)
         final = states[:, -1]
         p = states[:, int(1 / policy.dt):, :, :2]
-        d = np.sqrt(np.sum((p[:, :, :, None] - p[:, :, None]) ** 2, axis=-1))
-        d[..., np.arange(robots), np.arange(robots)] = np.inf
         row = {'case': name, 'limits': None if lim is None else lim.__dict__,
                'avd': _interval(avd(final[..., 2:])), 'amd': _interval(amd(final[..., :2])),
                'speed': float(np.linalg.norm(final[..., 2:], axis=-1).mean()),
-               'collisions': int((d.min(axis=(1, 2, 3)) < 0.3).sum())}
+               'collisions': int((min_pair_distance(p).min(axis=1) < 0.3).sum())}
         rows.append(row)
         log(f"{name:18s} avd {row['avd']['mean']:.3f} [{row['avd']['lo']:.3f}, {row['avd']['hi']:.3f}] "
             f"amd {row['amd']['mean']:.3f} [{row['amd']['lo']:.3f}, {row['amd']['hi']:.3f}] "

@@ -7,7 +7,7 @@
 For every test set (its ``test`` split, or all trajectories) and policy: rollouts with the
 canonical semantics (:func:`knode_swarm_ros.core.rollout`) from frame 0 for ``--steps`` steps,
 then per run amd(t), the final amd (last 10 frames), POD-KLD(truth || rollout) (10 modes),
-whether it stays in the cube, and the statistics of :func:`training.compare_unity.run_statistics`
+whether it stays in the cube, and the statistics of :func:`training.unity.statistics.run_statistics`
 for rollouts and ground truth. ``--oracle`` adds our ground-truth boids started from the same
 frames (speeds from the first displacement, dt 1/60): what a perfect learner could reach, since
 boids are chaotic and no rollout stays on the recorded path. Writes ``results.json``, ``summary.md``,
@@ -27,7 +27,8 @@ import numpy as np
 from knode_swarm_ros.core import PolicyError, amd, load_policy, load_trajectories, pod_kld, rollout
 from knode_swarm_ros.core.cli import cli
 
-from .compare_unity import run_statistics
+from .stats import describe, mean_ci
+from .unity.statistics import run_statistics
 
 STATS = ("speed_mean", "alignment", "flockmates", "subgroups_mean", "wall_distance", "amd_mean")
 COLOURS = ["tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:gray"]
@@ -41,18 +42,6 @@ def _pairs(items: Sequence[str], what: str) -> List[Tuple[str, str]]:
             raise ValueError(f"--{what} {item!r}: expected NAME=PATH")
         out.append((name, path))
     return out
-
-
-def _mean_ci(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    mean = x.mean(0)
-    half = 1.96 * x.std(0, ddof=1) / np.sqrt(x.shape[0]) if x.shape[0] > 1 else np.zeros_like(mean)
-    return mean, half
-
-
-def _describe(v: Sequence[float]) -> Dict[str, float]:
-    v = np.asarray(v, float)
-    return {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)) if v.size > 1 else 0.0,
-            "min": float(np.min(v)), "max": float(np.max(v))}
 
 
 class _Oracle:
@@ -98,8 +87,8 @@ def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tu
         T = min(steps, truth.shape[1] - 1) + 1
         truth = truth[:, :T]
         results["data"][dname] = {"file": dpath, "trajectories": int(len(truth)), "frames": T}
-        entry: Dict[str, Any] = {"truth": {k: _describe([run_statistics(r)[k] for r in truth]) for k in STATS}}
-        entry["truth"]["amd_final"] = _describe(amd(truth[:, -10:, :, :3]).mean(1))
+        entry: Dict[str, Any] = {"truth": {k: describe([run_statistics(r)[k] for r in truth]) for k in STATS}}
+        entry["truth"]["amd_final"] = describe(amd(truth[:, -10:, :, :3]).mean(1))
         curves[dname] = {"ground truth": amd(truth[..., :3])}
         klds[dname] = {}
         for pname, _, pol in loaded:
@@ -110,8 +99,8 @@ def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tu
             finite = bool(np.all(np.isfinite(pred)))
             kl = [pod_kld(truth[s], pred[s]) if finite else float("nan") for s in range(len(truth))]
             inside = np.all(np.abs(pred[..., :3]) <= 5.0 + 1e-9, axis=(1, 2, 3))
-            e = {k: _describe([run_statistics(r)[k] for r in pred]) for k in STATS} if finite else {}
-            e.update({"amd_final": _describe(amd(pred[:, -10:, :, :3]).mean(1)), "pod_kld": _describe(kl),
+            e = {k: describe([run_statistics(r)[k] for r in pred]) for k in STATS} if finite else {}
+            e.update({"amd_final": describe(amd(pred[:, -10:, :, :3]).mean(1)), "pod_kld": describe(kl),
                       "pod_kld_runs": kl, "inside": int(inside.sum()), "finite": finite,
                       "seconds": round(time.perf_counter() - t0, 1)})
             entry[pname] = e
@@ -144,7 +133,7 @@ def _figures(out: str, curves, klds, names: List[str]) -> List[str]:
             colour = "tab:blue" if label == "ground truth" else COLOURS[(k - 1) % len(COLOURS)]
             every = max(a.shape[1] // 150, 1)          # ~150 points per curve keep the PNG small
             a = a[:, ::every]
-            mean, half = _mean_ci(a)
+            mean, half = mean_ci(a)
             t = np.arange(a.shape[1]) * every / 60.0
             ax.plot(t, mean, color=colour, lw=1.1, label=label)
             ax.fill_between(t, mean - half, mean + half, color=colour, alpha=0.2, lw=0)

@@ -4,7 +4,7 @@
 
 Unity steps its boids with the variable ``Time.deltaTime`` (median exactly 1/60 s, about a
 quarter of the frames 1-5 % longer, a few hitches of 2.6/60 s); the recordings hold no time.
-:func:`training.compare_unity.estimate_frame_times` recovers every frame time from the
+:func:`training.unity.frames.estimate_frame_times` recovers every frame time from the
 spawn on (relative error about 1e-5). Between two frames a Unity boid moves in a straight
 line with its new velocity, so positions are linear in time between frames and the heading
 of the segment is the later frame's: this module samples that path every 1/60 s from
@@ -25,8 +25,8 @@ from knode_swarm_ros.core import save_trajectories
 from knode_swarm_ros.core.groundtruth import boids as gt_boids
 from knode_swarm_ros.core.cli import cli
 
-from .compare_unity import NOMINAL_DT, PRESET, estimate_frame_times
-from .import_unity import UnityFormatError, read_recording
+from .unity.frames import NOMINAL_DT, PRESET, estimate_frame_times
+from .unity.recordings import UnityFormatError, read_recording
 
 __all__ = ["resample_uniform", "retime_recordings", "main"]
 

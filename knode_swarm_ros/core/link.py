@@ -31,7 +31,8 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .network import _distances, _rank
+from .geometry import distances
+from .network import _rank
 from .rollout import PolicyFn, zoh_step
 from .scenarios import get_scenario
 
@@ -178,7 +179,7 @@ def link_rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_
         ok = ~eye[None].repeat(S, 0)
         counters['offered'] += int(ok.sum())
         if link.range > 0.0:
-            far = ~(_distances(pos, pos) <= link.range) & ok
+            far = ~(distances(pos, pos) <= link.range) & ok
             counters['out_of_range'] += int(far.sum())
             ok &= ~far
         if link.loss > 0.0:

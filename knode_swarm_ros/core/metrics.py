@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["avd", "amd", "pod_energy", "pod_kld"]
+from .geometry import pair_distances
 
-
-def _pair_distances(x: np.ndarray) -> np.ndarray:
-    diff = x[..., :, None, :] - x[..., None, :, :]
-    return np.sqrt(np.sum(diff * diff, axis=-1))
+__all__ = ["avd", "amd", "pod_energy", "pod_kld", "kl_divergence"]
 
 
 def avd(velocities: np.ndarray) -> np.ndarray:
@@ -23,7 +20,7 @@ def avd(velocities: np.ndarray) -> np.ndarray:
     n = velocities.shape[-2]
     if n < 2:
         raise ValueError("avd needs at least 2 robots")
-    return _pair_distances(velocities).sum(axis=(-1, -2)) / (n * (n - 1))
+    return pair_distances(velocities, exclude_self=False).sum(axis=(-1, -2)) / (n * (n - 1))
 
 
 def amd(positions: np.ndarray) -> np.ndarray:
@@ -31,9 +28,7 @@ def amd(positions: np.ndarray) -> np.ndarray:
     n = positions.shape[-2]
     if n < 2:
         raise ValueError("amd needs at least 2 robots")
-    dist = _pair_distances(positions)
-    dist[..., np.arange(n), np.arange(n)] = np.inf
-    return dist.min(axis=-1).mean(axis=-1)
+    return pair_distances(positions).min(axis=-1).mean(axis=-1)
 
 
 def pod_energy(states: np.ndarray, modes: int = 10, center: bool = False, squared: bool = False) -> np.ndarray:
@@ -65,7 +60,11 @@ def pod_kld(true_states: np.ndarray, predicted_states: np.ndarray, modes: int = 
 
     ``eps`` keeps the divergence finite where the prediction has no energy in a mode.
     """
-    p = pod_energy(true_states, modes, center, squared)
-    q = pod_energy(predicted_states, modes, center, squared)
+    return kl_divergence(pod_energy(true_states, modes, center, squared),
+                         pod_energy(predicted_states, modes, center, squared), eps)
+
+
+def kl_divergence(p: np.ndarray, q: np.ndarray, eps: float = 1e-12) -> float:
+    """KL(p || q) of two distributions ``[m]`` over the support of p; ``q`` is floored at ``eps``."""
     support = p > 0
     return float(np.sum(p[support] * np.log(p[support] / np.maximum(q[support], eps))))

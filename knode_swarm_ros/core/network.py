@@ -20,14 +20,10 @@ from typing import Tuple
 
 import numpy as np
 
+from .geometry import distances, pair_distances
+
 __all__ = ["neighbour_matrix", "neighbour_matrix_single", "neighbour_matrices", "neighbour_index",
            "neighbour_matrix_torch", "delayed_index"]
-
-
-def _distances(query: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """Euclidean distances ``[..., q, n]`` between ``query [..., q, p]`` and ``others [..., n, p]``."""
-    diff = query[..., :, None, :] - others[..., None, :, :]
-    return np.sqrt(np.sum(diff * diff, axis=-1))
 
 
 def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -96,9 +92,7 @@ def neighbour_index(z_delayed: np.ndarray, position_dim: int, d_cr: float,
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
     pos = np.asarray(z_delayed)[..., :position_dim]
-    dist = _distances(pos, pos)
-    n = dist.shape[-1]
-    dist[..., np.arange(n), np.arange(n)] = np.inf  # a robot is not its own neighbour
+    dist = pair_distances(pos)      # inf diagonal: a robot is not its own neighbour
     return _rank(dist, d_cr, k)
 
 
@@ -145,7 +139,7 @@ def neighbour_matrix_single(i: int, z_now_i: np.ndarray, z_delayed: np.ndarray,
         raise ValueError(f"k must be >= 1, got {k}")
     z_delayed = np.asarray(z_delayed)
     pos = z_delayed[:, :position_dim]
-    dist = _distances(pos[i:i + 1], pos)
+    dist = distances(pos[i:i + 1], pos)
     dist[0, i] = np.inf
     index, valid = _rank(dist, d_cr, k)
     Y, mask = _assemble(np.asarray(z_now_i)[None, :], z_delayed, index, valid)
