@@ -92,7 +92,7 @@ def test_runner_maps_errors_to_statuses(capsys, exc, status):
 
 
 def test_a_documented_status_and_the_divergence_error():
-    from training.train import DivergenceError
+    from training.trainer import DivergenceError
     err = DivergenceError("epoch 3: loss nan")
     assert isinstance(err, RunError) and err.exit_status == 3 and str(err) == "training diverged: epoch 3: loss nan"
     assert _main_raising(err)() == 3
@@ -110,9 +110,9 @@ def test_runner_leaves_bugs_and_argparse_alone():
 def test_domain_errors_share_the_base_and_stay_value_errors():
     from knode_swarm_ros.bag import BagError
     from knode_swarm_ros.nodes.common import ConfigError as NodeConfigError
-    from training.common import ConfigError as TrainingConfigError
+    from training.config import ConfigError as TrainingConfigError
     from training.import_unity import UnityFormatError
-    from training.train import DataError
+    from training.trainer import DataError
     assert NodeConfigError is TrainingConfigError is ConfigError
     for cls in (PolicyError, TrajectoryError, ConfigError, BagError, DataError, UnityFormatError):
         assert issubclass(cls, KnodeError) and issubclass(cls, ValueError) and cls.exit_status == 2, cls
