@@ -21,7 +21,7 @@ from test_ros_swarm import Launcher, _assert_no_strays, _pids, _run  # noqa: E40
 pytestmark = pytest.mark.ros
 
 
-def test_lockstep_over_three_hosting_processes_equals_the_offline_rollout(tmp_path, untrained_policies):
+def test_lockstep_over_three_hosting_processes_equals_the_offline_rollout(tmp_path, untrained_policies, ros_domain_id):
     record = tmp_path / 'hosted.npz'
     steps = 200
     # A loaded machine may leave a hosting process behind its queue for longer than the default
@@ -46,7 +46,8 @@ def test_lockstep_over_three_hosting_processes_equals_the_offline_rollout(tmp_pa
     _assert_no_strays(tmp_path)
 
 
-def test_a_killed_hosting_process_is_reported_with_its_robots_and_the_others_go_on(tmp_path, untrained_policies):
+def test_a_killed_hosting_process_is_reported_with_its_robots_and_the_others_go_on(tmp_path, untrained_policies,
+                                                                                     ros_domain_id):
     record = tmp_path / 'kill.npz'
     steps = 400
     run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 9, '--agents-per-process', 3,

@@ -26,7 +26,7 @@ def _namespaces():
     return set(line.split()[0] for line in os.popen('ip netns list').read().splitlines() if line.strip())
 
 
-def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path, untrained_policies):
+def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path, untrained_policies, ros_domain_id):
     before = _namespaces()
     try:
         hosts_cm = netns.virtual_hosts(3)

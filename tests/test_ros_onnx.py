@@ -48,7 +48,8 @@ def test_lockstep_swarm_on_onnxruntime_without_torch(tmp_path, untrained_policie
     record = tmp_path / 'onnx.npz'
     proc = subprocess.run([sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(tmp_path / 'logs'),
                            '--no-figure', '--policy', str(pt), '--policy-runtime', 'onnxruntime', '--robots', '10',
-                           '--steps', '300', '--seed', '3', '--record', str(record)],
+                           '--steps', '300', '--seed', '3', '--state-timeout', '120', '--lockstep-timeout', '120',
+                           '--record', str(record)],
                           env=env, capture_output=True, text=True, timeout=240)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out

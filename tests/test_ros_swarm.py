@@ -199,7 +199,7 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
     states = data.states[0]
     assert states.shape[0] == steps + 1 and data.meta['incomplete_frames'] == 0
     np.testing.assert_allclose(states[-50:, 2, 2:], 0.0, atol=1e-9)
-    np.testing.assert_allclose(states[-50:, 2, :2], states[-1, 2, :2], atol=1e-9)
+    np.testing.assert_allclose(states[-50:, 2, :2], np.broadcast_to(states[-1, 2, :2], (50, 2)), atol=1e-9)
     _assert_no_strays(tmp_path)
     # No shared-memory file of this run is left: no unlocked lock file, no port of its domain.
     domain = int(re.search(r'ROS_DOMAIN_ID=(\d+)', out).group(1))
