@@ -13,8 +13,6 @@ has saved, then the node exits with status 0). Startup that does not complete wi
 """
 from __future__ import annotations
 
-import json
-import os
 import sys
 import time
 from functools import partial
@@ -35,6 +33,7 @@ from .common import (CLOCK_TOPIC, EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, MARKERS_TO
 from .conversions import command_msg_type, msg_to_command, odom_to_cdr, time_msg
 from .executor import run_node
 from .markers import swarm_markers
+from .reporting import Throttle, throttled_log, write_json_report
 from .params import check_overrides, declare
 from .simulator_logic import SwarmSim, initial_state, initial_state_from_file, make_ground_truth
 
@@ -42,7 +41,6 @@ __all__ = ['SimulatorNode', 'main']
 
 _WATCHDOG_PERIOD = 0.01   # wall seconds
 _LOCKSTEP_BURST = 20      # ground-truth lockstep: steps per watchdog call at most
-_LOG_EVERY_S = 5.0
 
 
 class SimulatorNode(Node):
@@ -141,7 +139,7 @@ class SimulatorNode(Node):
         self._last_publish = -1e9
         self._overruns = 0
         self._frames = 0
-        self._last_log = {}
+        self._log_throttle = Throttle()
         self._last_progress = (time.monotonic(), 0)
 
         wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -366,10 +364,7 @@ class SimulatorNode(Node):
             self.finished.set_result(code)
 
     def _throttled(self, key: str, text: str, warn: bool = False) -> None:
-        now = time.monotonic()
-        if now - self._last_log.get(key, -1e9) >= _LOG_EVERY_S:
-            self._last_log[key] = now
-            (self.get_logger().warning if warn else self.get_logger().info)(text)
+        throttled_log(self.get_logger(), self._log_throttle, key, text, warn)
 
     # --- report --------------------------------------------------------------------
     def report(self) -> dict:
@@ -386,12 +381,8 @@ class SimulatorNode(Node):
 
     def write_report(self) -> None:
         """Write :meth:`report` to the ``report`` file (if set), atomically."""
-        if not getattr(self, 'report_path', ''):
-            return
-        tmp = f'{self.report_path}.tmp{os.getpid()}'
-        with open(tmp, 'w') as fh:
-            json.dump(self.report(), fh, indent=1, default=str)
-        os.replace(tmp, self.report_path)
+        if getattr(self, 'report_path', ''):
+            write_json_report(self.report_path, self.report(), indent=1, default=str)
 
 
 def _ids(ids) -> str:
