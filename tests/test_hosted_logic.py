@@ -142,7 +142,7 @@ def test_a_hosted_id_outside_the_swarm_is_refused(policies):
 
 
 def test_the_launcher_splits_robots_over_hosting_processes():
-    from knode_swarm_ros.nodes import swarm_hosting as hosting
+    from knode_swarm_ros.nodes.swarm import hosting
     assert hosting.resolve_agents_per_process(0, 10, cores=2) == 1       # small swarms: one process per robot
     assert hosting.resolve_agents_per_process(0, 100, cores=2) == 50     # 2 processes on 2 cores
     assert hosting.resolve_agents_per_process(0, 200, cores=16) == 25    # at most 8 processes

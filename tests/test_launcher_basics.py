@@ -56,7 +56,7 @@ def test_too_many_robots_for_the_nodes_or_the_memory_are_refused_before_anything
     out = tmp_path / 'run.npz'
     code, cap = _main(['--robots', 13000, '--record', out, '--log-dir', tmp_path / 'logs'], capsys)
     assert code == 2 and '--robots must be in 1..10000' in cap.err and '13000' in cap.err
-    monkeypatch.setattr(swarm, 'available_memory_mb', lambda: 4096.0)
+    monkeypatch.setattr(swarm.plan, 'available_memory_mb', lambda: 4096.0)  # the module that calls it
     code, cap = _main(['--robots', 405, '--agents-per-process', 1, '--record', out, '--log-dir', tmp_path / 'logs'],
                       capsys)
     assert code == 2 and '405 agent processes need about 130.8 GB' in cap.err and '4.0 GB available' in cap.err

@@ -461,7 +461,7 @@ def test_launcher_commands_carry_ros_args(tmp_path, untrained_policies):
 def test_shm_cleanup_removes_only_new_unlocked_fastdds_files(tmp_path, monkeypatch):
     import fcntl
     from knode_swarm_ros.nodes import swarm
-    monkeypatch.setattr(swarm, 'SHM_DIR', tmp_path)
+    monkeypatch.setattr(swarm.shm, 'SHM_DIR', tmp_path)  # the module that reads it
     (tmp_path / 'fastrtps_old').write_bytes(b'')
     (tmp_path / 'fastrtps_old_el').write_bytes(b'')
     (tmp_path / 'fastrtps_port7000').write_bytes(b'')  # an old orphan: not ours to judge

@@ -11,8 +11,6 @@ declares parameters, converts messages and keeps time. The node is called ``agen
 """
 from __future__ import annotations
 
-import json
-import os
 import sys
 import time
 from functools import partial
@@ -34,11 +32,11 @@ from .control_period import RATE_CHECKS, shipped_policy_for_rate
 from .conversions import (TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_fields_from_cdr,
                           odom_from_cdr, time_msg)
 from .executor import run_node
+from .reporting import LOG_EVERY_S as _LOG_EVERY_S, Throttle, throttled_log, write_json_report
 from .params import check_overrides, declare, declare_int_array, node_name_from_args
 
 __all__ = ['AgentNode', 'main', 'load_agent_policy']
 
-_LOG_EVERY_S = 5.0
 _EXPLAIN = {
     'malformed': 'that could not be decoded as nav_msgs/Odometry',
     'unknown_id': 'from a robot that is not part of the swarm',
@@ -164,7 +162,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._drops = {reason: [0, 0.0, ''] for reason in DROP_REASONS}  # count since log, last log, detail
-        self._last_log = {}
+        self._log_throttle = Throttle()
         self._announced_ready = False
 
         self.cmd_pub = self.create_publisher(command_msg_type(self.spec), command_topic(robot_id, self.spec.command),
@@ -272,13 +270,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
 
     # --- logging -------------------------------------------------------------------
     def _throttled(self, key: str, text: str, warn: bool = False) -> None:
-        now = time.monotonic()
-        if now - self._last_log.get(key, -1e9) >= _LOG_EVERY_S:
-            self._last_log[key] = now
-            if warn:  # two call sites: rclpy refuses one call site logging at two severities
-                self.get_logger().warning(text)
-            else:
-                self.get_logger().info(text)
+        throttled_log(self.get_logger(), self._log_throttle, key, text, warn)
 
     def _note_drop(self, reason: str, detail: str) -> None:
         entry = self._drops[reason]
@@ -321,12 +313,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
 
     def write_report(self) -> None:
         """Write the counters to the ``report`` file (if set)."""
-        if not getattr(self, 'report_path', ''):
-            return
-        tmp = f'{self.report_path}.tmp{os.getpid()}'
-        with open(tmp, 'w') as fh:
-            json.dump(self._status(), fh)
-        os.replace(tmp, self.report_path)
+        if getattr(self, 'report_path', ''):
+            write_json_report(self.report_path, self._status())
 
 
 def main(args=None):

@@ -12,8 +12,6 @@ module, one batched policy call per tick. The node is called ``agents_<first>_<l
 """
 from __future__ import annotations
 
-import json
-import os
 import sys
 import time
 from functools import partial
@@ -33,10 +31,10 @@ from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_c
 from .executor import run_node
 from .hosted_logic import HostedAgents, format_ids, parse_ids
 from .params import declare, declare_int_array
+from .reporting import Throttle, write_json_report
 
 __all__ = ['AgentsNode', 'main', 'node_name_for']
 
-_LOG_EVERY_S = 5.0
 
 
 def node_name_for(argv) -> str:
@@ -102,7 +100,7 @@ class AgentsNode(Node):
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._drops = {reason: 0 for reason in DROP_REASONS}
-        self._last_log = {}
+        self._log_throttle = Throttle()
         self._announced_ready = False
         self._warm_up(policy)
 
@@ -166,9 +164,7 @@ class AgentsNode(Node):
 
     def _note_drop(self, reason: str, detail: str) -> None:
         self._drops[reason] += 1
-        now = time.monotonic()
-        if now - self._last_log.get(reason, -1e9) >= _LOG_EVERY_S:
-            self._last_log[reason] = now
+        if self._log_throttle.ready(reason):
             self.get_logger().warning(f'dropped {self._drops[reason]} state(s) in all ({reason}; latest: {detail})')
 
     def _publish_status(self) -> None:
@@ -179,10 +175,7 @@ class AgentsNode(Node):
         """Write every hosted robot's counters to the ``report`` file (if set)."""
         if not getattr(self, 'report_path', '') or not hasattr(self, 'hosted'):
             return
-        tmp = f'{self.report_path}.tmp{os.getpid()}'
-        with open(tmp, 'w') as fh:
-            json.dump(self.hosted.status(), fh)
-        os.replace(tmp, self.report_path)
+        write_json_report(self.report_path, self.hosted.status())
 
 
 def main(args=None):

@@ -31,6 +31,7 @@ from .conversions import TWIST_FRAMES, CdrError, odom_from_cdr
 from .executor import run_node
 from .params import check_overrides, declare
 from .recorder_logic import FrameCollector, swarm_metrics
+from .reporting import Throttle
 
 __all__ = ['RecorderNode', 'main']
 
@@ -85,7 +86,7 @@ class RecorderNode(Node):
         self._announced = False
         self._dt_warned = False
         self._published_progress = -1
-        self._last_drop_log = {}
+        self._drop_throttle = Throttle()
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
 
         wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -129,9 +130,7 @@ class RecorderNode(Node):
             self._maybe_save()
 
     def _throttled_drop(self, reason: str, robot: int, stamp: int) -> None:
-        now = time.monotonic()
-        if now - self._last_drop_log.get(reason, -1e9) >= 5.0:
-            self._last_drop_log[reason] = now
+        if self._drop_throttle.ready(reason):
             self.get_logger().warning(f'dropped a state of robot {robot} stamped {stamp * 1e-9:.3f} s ({reason}; '
                                       f'{self.frames.counters[reason]} in all)')
 

@@ -1,0 +1,72 @@
+"""FastDDS shared-memory cleanup after the launcher's processes have ended.
+
+With ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` this rmw_fastrtps always adds its
+shared-memory transport (an XML profile or FASTDDS_BUILTIN_TRANSPORTS does not remove it,
+measured), so processes create ``/dev/shm/fastrtps_*`` files; they remove them on a clean exit,
+a killed process leaves them behind. The launcher deletes the FastDDS files that appeared during
+the run and that no live process holds a lock on (the rule ``fastdds shm clean`` uses, extended
+to the ports a killed process leaves without a lock file), so nothing of another user's live
+processes is touched.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+from pathlib import Path
+from typing import List
+
+__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup']
+
+SHM_DIR = Path('/dev/shm')
+_SHM_RE = re.compile(r'^(sem\.)?(fastrtps|fastdds)_')
+
+
+def shm_snapshot() -> set:
+    """Names of the FastDDS files in /dev/shm now."""
+    try:
+        return {n for n in os.listdir(SHM_DIR) if _SHM_RE.match(n)}
+    except OSError:
+        return set()
+
+
+def _locked(path: Path) -> bool:
+    try:
+        with open(path, 'ab') as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except OSError:
+        return True
+
+
+def shm_cleanup(before: set) -> List[str]:
+    """Delete FastDDS files that appeared since ``before`` and that no live process holds.
+
+    A segment or port ``X`` comes with a lock file ``X_el`` (or ``X_sl``) that its live owner
+    keeps locked, and a port with ``sem.X_mutex``. A group whose lock file is unlocked (its
+    owner was killed: the rule of ``fastdds shm clean``) or gone (a port that a killed process
+    had opened stays behind after its owner's clean exit, measured) is deleted, but only the
+    files of it that are new. Returns the names removed.
+    """
+    new = shm_snapshot() - before
+    bases = set()
+    for name in new:
+        if name.startswith('sem.') and name.endswith('_mutex'):
+            bases.add(name[4:-6])
+        elif name.endswith(('_el', '_sl')):
+            bases.add(name[:-3])
+        else:
+            bases.add(name)
+    removed = []
+    for base in sorted(bases):
+        locks = [SHM_DIR / f'{base}{tail}' for tail in ('_el', '_sl')]
+        if any(lock.exists() and _locked(lock) for lock in locks):
+            continue  # a live process owns it
+        for victim in (base, f'{base}_el', f'{base}_sl', f'sem.{base}_mutex'):
+            if victim in new:
+                try:
+                    (SHM_DIR / victim).unlink()
+                    removed.append(victim)
+                except OSError:
+                    pass
+    return removed

@@ -1,0 +1,196 @@
+"""The run: start the plan's processes in two stages, watch them, stop them all, clean up.
+
+Signals only set a flag (see ``on_signal``); :meth:`.processes.Children.pump` raises it.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Dict, List, Optional
+
+from ..common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
+from . import hosting
+from .commands import child_environment, node_commands
+from .console import say as _say
+from .plan import Plan
+from .processes import Children, Interrupted, start_child
+from .report import summarise
+from .shm import shm_cleanup, shm_snapshot
+
+__all__ = ['run']
+
+
+def run(plan: Plan) -> int:
+    """Start, supervise and stop the processes of ``plan``; returns the exit status."""
+    plan.record.parent.mkdir(parents=True, exist_ok=True)  # checked by plan_run (a fresh clone has no out/)
+    env = child_environment(plan.domain_id)
+    commands, env = hosting.place(node_commands(plan), env, plan.netns)
+    shm_before = shm_snapshot()
+    record_before = _file_identity(plan.record)
+    children = Children()
+    stop_reason = {'signal': None}
+
+    def on_signal(signum, _frame):
+        # Only a flag: a signal handler that raises can have its exception swallowed (an at-fork
+        # hook of the logging module runs pending handlers while a child is started and ignores
+        # what they raise, measured) or raised in the forked child. Children.pump raises it.
+        stop_reason['signal'] = signum
+        children.interrupted = True
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    code = EXIT_OK
+    lost_agents: List[str] = []
+    t0 = time.monotonic()
+    try:
+        try:
+            _say(f'{plan.robots} robots, {plan.scenario}, {plan.mode}, {plan.steps or "unlimited"} steps, '
+                 f'ROS_DOMAIN_ID={plan.domain_id}, logs in {plan.run_dir}')
+            if plan.ground_truth:
+                _say(f'ground truth ({plan.variant or "paper"}): the simulator drives the robots, no agents')
+            else:
+                _say(f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
+                     f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})')
+                if plan.mode == 'realtime':
+                    from ..control_period import check_control_period
+                    _say(check_control_period(plan.rate, plan.dt).describe() or f'control period = policy dt ({plan.dt:g} s)')
+            failed = _start_in_stages(plan, commands, env, children, t0)
+            pids = {name: c.pid for name, c in children.items.items()}
+            (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
+            if failed is not None:
+                code = failed
+            else:
+                agents = [n for n in pids if hosting.is_agent_process(n)]
+                _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
+                     + (f', {len(agents)} agent processes for {plan.robots} robots (pids {pids[agents[0]]}..'
+                        f'{pids[agents[-1]]})' if agents else '')
+                     + ': waiting until every agent has heard every robot')
+                code = _supervise(plan, children, lost_agents, t0)
+        except Interrupted:
+            name = signal.Signals(stop_reason['signal']).name
+            _say(f'{name}: stopping every process (the recorder saves what it has)')
+            code = EXIT_INTERRUPTED
+        # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        children.interrupted = False
+        for note in children.stop():
+            _say(note)
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        for c in children.alive():  # never leave a process behind
+            c.proc.kill()
+            c.proc.wait()
+        children.close()
+        removed = shm_cleanup(shm_before)
+        if removed:
+            _say(f'removed {len(removed)} FastDDS shared-memory file(s) left by killed processes')
+    _say(f'every process has stopped ({time.monotonic() - t0:.1f} s in all)')
+    if code in (EXIT_OK, EXIT_AGENT_LOST, EXIT_INTERRUPTED):
+        if _file_identity(plan.record) != record_before:
+            summarise(plan)
+        elif record_before is not None:
+            _say(f'no recording was written in this run: {plan.record} is an earlier file, left as it was '
+                 '(not summarised)')
+        else:
+            _say('no recording was written in this run')
+    if lost_agents and code == EXIT_OK:
+        code = EXIT_AGENT_LOST
+    if lost_agents:
+        _say(f'agent process(es) died during the run: {"; ".join(lost_agents)}')
+    return code
+
+
+def _file_identity(path: Path):
+    """(inode, size, mtime) of ``path``, None when absent: the recorder replaces the file
+    atomically, so any write of this run changes it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children,
+                     t0: float) -> Optional[int]:
+    """Start the simulator and the recorder, then, once both are past their checks (their logs
+    say so), the agents: a refused parameter or file stops the run before hundreds of agents
+    load torch. (An agent that refuses its configuration stops the run in _supervise; agents are
+    not staged further: under load, one agent's start-up is tens of seconds that the simulator's
+    start-up timeout would lose.) Returns an exit status when the first stage failed."""
+    names = list(commands)
+    agents = [n for n in names if hosting.is_agent_process(n)]
+    for stage in ([n for n in names if n not in agents], agents):
+        for name in stage:
+            echo = 'none' if plan.quiet else 'problems' if hosting.is_agent_process(name) else 'all'
+            children.add(start_child(name, commands[name], env, plan.run_dir, echo))
+        if stage is agents:
+            break  # supervised with the rest of the run
+        waiting = [children.items[n] for n in stage]
+        while any(not c.marked for c in waiting):
+            children.pump(0.1)
+            for c in waiting:
+                if c.proc.poll() is not None and not c.marked:
+                    c.reported = True
+                    last = [line for line in c.tail if line.strip()][-3:]
+                    detail = (' -- last output: ' + ' | '.join(last)) if last else ''
+                    _say(f'the {c.name} (pid {c.pid}) {c.how_it_ended()} while starting{detail}: nothing else '
+                         'is started')
+                    return EXIT_CONFIG if c.proc.returncode == EXIT_CONFIG else EXIT_FAILURE
+            if time.monotonic() - t0 > plan.startup_timeout:
+                late = [c.name for c in waiting if not c.marked]
+                _say(f'{", ".join(late)} not started after --startup-timeout {plan.startup_timeout:g} s: stopping')
+                return EXIT_FAILURE
+    return None
+
+
+def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float) -> int:
+    sim = children.items['simulator']
+    rec = children.items['recorder']
+    while True:
+        children.pump(0.1)
+        for c in children.items.values():
+            if c.reported or c.proc.poll() is None:
+                continue
+            c.reported = True
+            rc = c.proc.returncode
+            if c is rec and rc == 0:
+                continue  # saved after the simulator said done
+            if c.name == 'lifecycle_manager' and rc == 0:
+                _say('every agent configured, then activated together')
+                continue
+            if c is sim and rc == 0:
+                _say('the simulator has finished')
+                end = time.monotonic() + 15.0
+                while rec.proc.poll() is None and time.monotonic() < end:
+                    children.pump(0.1)
+                if rec.proc.poll() not in (0,):
+                    _say(f'the recorder {rec.how_it_ended()} after the simulator finished')
+                    return EXIT_FAILURE
+                return EXIT_OK
+            why = c.how_it_ended()
+            last = [line for line in c.tail if line.strip()][-3:]
+            detail = (' -- last output: ' + ' | '.join(last)) if last else ''
+            if hosting.is_agent_process(c.name):
+                held = hosting.robots_of(c.name)
+                _say(f'{c.name} (pid {c.pid}) {why}{detail}')
+                lost_agents.append(f'{c.name} (pid {c.pid}) {why}'
+                                   + (f', hosting robots {held}' if c.name.startswith('agents_') else ''))
+                if rc == EXIT_CONFIG:
+                    _say('an agent refused its configuration: stopping the run')
+                    return EXIT_CONFIG
+                if plan.on_agent_exit == 'stop':
+                    _say('--on-agent-exit stop: stopping the run')
+                    return EXIT_FAILURE
+                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot'
+                     f'{"s" if len(held) > 1 else ""} {", ".join(map(str, held))} at '
+                     f'{"their" if len(held) > 1 else "its"} last command')
+            else:
+                _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
+                return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE
+        if plan.timeout and time.monotonic() - t0 > plan.timeout:
+            _say(f'--timeout {plan.timeout:g} s reached: stopping the run')
+            return EXIT_FAILURE
