@@ -203,7 +203,7 @@ def quality(record: Path, policy_path: str) -> dict:
 # --- multihost --------------------------------------------------------------------------------
 def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
     from knode_swarm_ros.nodes import netns
-    from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
+    from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
     out = {}
     print(f'\n## three hosts (network namespaces on a bridge, subnet discovery, UDP) vs one host (localhost)')
     print(f'{"robots":>6} {"where":>6} {"mode":>9} {"steps/s":>8} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} '
@@ -290,7 +290,7 @@ def main(argv=None) -> int:
         print(f'\n## lockstep, {a.steps} steps (steps/s after startup; PSS of all processes while running)')
         print(f'{"robots":>6} {"layout":>7} {"procs":>5} {"steps/s":>8} {"startup s":>9} {"p50 ms":>8} {"p99 ms":>8} '
               f'{"PSS MB":>8} rc', flush=True)
-        from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process
+        from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process
         for n in counts:
             rows = {}
             for layout in ('lone', 'hosted'):
@@ -321,7 +321,7 @@ def main(argv=None) -> int:
         print(f'\n## realtime at 20 Hz, {a.seconds:g} s simulated, hosted')
         print(f'{"robots":>6} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} {"PSS MB":>8} rc', flush=True)
         for n in counts:
-            from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
+            from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
             k = resolve(a.agents_per_process, n)
             steps = int(round(a.seconds / 0.01))
             r = run_swarm(['--policy', policy, '--robots', n, '--steps', steps, '--mode', 'realtime', '--rate', 20,
@@ -343,7 +343,7 @@ def main(argv=None) -> int:
         for n in counts:
             record = tmp / f'lockstep_{n}_hosted.npz'
             if not record.exists():
-                from knode_swarm_ros.nodes.swarm_hosting import resolve_agents_per_process as resolve
+                from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
                 r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
                                '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *_lockstep_wait(a),
                                '--record', record], tmp / f'quality_{n}', a.timeout)
