@@ -1,4 +1,4 @@
-"""The information network against hand-built configurations (DESIGN.md, Method A and B)."""
+"""The information network against hand-built configurations (docs/DESIGN.md, Method A and B)."""
 import numpy as np
 import pytest
 

@@ -152,7 +152,7 @@ def test_invalid_json(tmp_path, good):
         load_policy(path)
 
 
-# The required keys of DESIGN.md, spelt out here (not imported) so that dropping one from
+# The required keys of docs/DESIGN.md, spelt out here (not imported) so that dropping one from
 # the loader's list is caught.
 @pytest.mark.parametrize("key", ["format", "scenario", "state_dim", "command_dim", "command", "k",
                                  "d_cr", "tau", "dt", "state_layout"])

@@ -193,7 +193,7 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
         agent = json.loads((tmp_path / 'logs' / f'agent_{i}.json').read_text())
         assert agent['answered'] == steps and agent['counters']['commands'] >= steps
     assert not (tmp_path / 'logs' / 'agent_2.json').exists()
-    # The recording is complete, and robot 2 was braked to rest (DESIGN.md: a lost acceleration-
+    # The recording is complete, and robot 2 was braked to rest (docs/DESIGN.md: a lost acceleration-
     # commanded robot does not coast, nor keep its last acceleration): at rest, in place, at the end.
     data = load_trajectories(record)
     states = data.states[0]

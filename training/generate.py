@@ -1,4 +1,4 @@
-"""Generate a ground-truth observation dataset (a trajectory file, DESIGN.md "Trajectory files").
+"""Generate a ground-truth observation dataset (a trajectory file, docs/DESIGN.md "Trajectory files").
 
     python -m training.generate --scenario flock2d --out data/flock2d.npz
     python -m training.generate --scenario boids3d --preset published --out data/boids3d_published.npz

@@ -1,5 +1,5 @@
 """Import a recording of a swarm (rosbag2 sqlite3 or MCAP, ROS 1 bag) into a trajectory file
-(DESIGN.md, "Trajectory files").
+(docs/DESIGN.md, "Trajectory files").
 
     python -m training.import_bag BAG --scenario flock2d --topics '/robot_*/odom' --rate 100 --out data/real.npz
     python -m training.import_bag BAG --scenario boids3d --frames 'cf*' --rate 60 --out data/cf.npz     # /tf

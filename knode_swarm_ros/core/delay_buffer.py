@@ -3,7 +3,7 @@
 Messages arrive with stamps, late, out of order or not at all. The buffer files each
 state under its step index ``round(stamp / dt)`` and answers "the state of robot j at
 step s" with the newest state at or before s (a gap is bridged by the last state heard;
-before the first state heard, the earliest one is used, as DESIGN.md fixes for t < tau).
+before the first state heard, the earliest one is used, as docs/DESIGN.md fixes for t < tau).
 """
 from __future__ import annotations
 

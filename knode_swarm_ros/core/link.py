@@ -1,4 +1,4 @@
-"""Imperfect links between robots: loss, delay, jitter and radio range (no ROS; DESIGN.md).
+"""Imperfect links between robots: loss, delay, jitter and radio range (no ROS; docs/DESIGN.md).
 
 The model sits where a robot receives a neighbour's state. Every state robot j sends at time
 s reaches robot i independently of every other message:

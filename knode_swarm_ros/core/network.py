@@ -1,4 +1,4 @@
-"""The decentralised information network (paper, Method A and B; DESIGN.md).
+"""The decentralised information network (paper, Method A and B; docs/DESIGN.md).
 
 For robot i at step t, with radius ``d_cr``, ``k`` rows (the robot itself included) and a
 delay of ``tau`` steps, the neighbour matrix Y_i is ``[k, d]``:

@@ -7,7 +7,7 @@
   the mask (translation invariant; the own position is kept only where walls make absolute
   position matter), ``frame='absolute'`` feeds the paper's raw masked Y.
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains.
-* saturation per axis at ``command_limit`` as the last operation (DESIGN.md: real
+* saturation per axis at ``command_limit`` as the last operation (docs/DESIGN.md: real
   actuators saturate, and a zero-order hold of an unbounded repulsion is unstable).
 
 The forward signature is the policy file contract: ``forward(Y [B, k, d], mask [B, k]) -> [B, m]``.
@@ -128,7 +128,7 @@ class KNODEPolicy(nn.Module):
         return torch.clamp(u, -self.command_limit, self.command_limit)
 
     def metadata(self, dt: Optional[float] = None) -> Dict[str, Any]:
-        """The ``knode.json`` object of DESIGN.md for this policy."""
+        """The ``knode.json`` object of docs/DESIGN.md for this policy."""
         spec = get_scenario(self.config.scenario)
         meta = {"format": "knode-policy/1", "scenario": spec.name, "state_dim": spec.state_dim,
                 "command_dim": spec.command_dim, "command": spec.command, "k": self.config.k,

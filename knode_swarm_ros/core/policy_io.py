@@ -1,7 +1,7 @@
 """Policy files: export a controller to TorchScript and load any valid policy file.
 
 A policy file is one TorchScript archive whose ``forward(Y [B, k, d], mask [B, k]) -> [B, m]``
-returns the command, with ``knode.json`` metadata in its extra files (DESIGN.md,
+returns the command, with ``knode.json`` metadata in its extra files (docs/DESIGN.md,
 "Policy file contract"). The loader checks everything a robot relies on before the first
 real call, so a bad file fails at start with a message naming the field, never deep
 inside torch in the control loop.

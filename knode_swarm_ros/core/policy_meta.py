@@ -1,4 +1,4 @@
-"""The policy file's ``knode.json`` contract, free of torch (DESIGN.md, "Policy file contract").
+"""The policy file's ``knode.json`` contract, free of torch (docs/DESIGN.md, "Policy file contract").
 
 Both runtimes check metadata here: the TorchScript loader (:mod:`.policy_io`) and the
 onnxruntime one (:mod:`.policy_runtime`), so a robot that runs the ONNX twin checks exactly

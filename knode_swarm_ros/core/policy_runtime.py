@@ -3,7 +3,7 @@
 * ``torchscript``: :class:`knode_swarm_ros.core.policy_io.LoadedPolicy` (the contract and the
   training artefact; imports torch).
 * ``onnxruntime``: :class:`OnnxPolicy`, the ONNX twin ``POLICY.onnx`` beside ``POLICY.pt``
-  (DESIGN.md, "ONNX twin"). Nothing on this path imports torch: the knowledge terms and the
+  (docs/DESIGN.md, "ONNX twin"). Nothing on this path imports torch: the knowledge terms and the
   policy's own saturation are in the exported graph, the metadata checks are
   :mod:`.policy_meta`'s and the inputs are numpy.
 

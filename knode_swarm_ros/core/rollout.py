@@ -1,4 +1,4 @@
-"""The canonical rollout (DESIGN.md, "Rollout semantics").
+"""The canonical rollout (docs/DESIGN.md, "Rollout semantics").
 
 At each step every robot builds its neighbour matrix, the policy is evaluated once per
 robot, and the command is held over the step (zero-order hold), integrated exactly:

@@ -1,6 +1,6 @@
 """Command saturation and the braking stop: one rule for the offline rollout, the agent and the simulator.
 
-DESIGN.md, "ROS 2 interfaces": the applied command is the policy's output clipped per axis at
+docs/DESIGN.md, "ROS 2 interfaces": the applied command is the policy's output clipped per axis at
 the policy's ``command_limit`` (when its knode.json has one); an agent parameter may lower the
 limit, never raise it. A robot that must stop (stale own state, lost agent) gets zero velocity
 (velocity-commanded) or brakes to rest at the saturated deceleration (acceleration-commanded):

@@ -13,7 +13,7 @@ __all__ = ["Scenario", "SCENARIOS", "get_scenario"]
 
 @dataclass(frozen=True)
 class Scenario:
-    """Static description of a scenario (see DESIGN.md, "Scenarios").
+    """Static description of a scenario (see docs/DESIGN.md, "Scenarios").
 
     Attributes:
         name: ``flock2d`` or ``boids3d``.

@@ -1,4 +1,4 @@
-"""Trajectory files (DESIGN.md, "Trajectory files"): read, validate and write atomically.
+"""Trajectory files (docs/DESIGN.md, "Trajectory files"): read, validate and write atomically.
 
 A file is an ``.npz`` with ``states`` float64 ``[trajectories, T, n, d]`` (T >= 1),
 ``dt`` (float), ``scenario`` (string) and ``meta`` (a JSON string).

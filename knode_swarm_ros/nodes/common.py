@@ -1,6 +1,6 @@
 """ROS-free helpers shared by the nodes, their logic classes and the launcher.
 
-* topic names (relative, so that a namespace or a remapping moves them; DESIGN.md,
+* topic names (relative, so that a namespace or a remapping moves them; docs/DESIGN.md,
   "ROS 2 interfaces"),
 * stamps: a state of step ``s`` is stamped ``round(s * dt * 1e9)`` nanoseconds and a stamp
   maps back to ``round(ns / (dt * 1e9))`` (the core's :class:`DelayBuffer` uses the same

@@ -1,7 +1,7 @@
 """The one place where an agent process calls its policy: one batched call for its robots.
 
 A lone ``agent`` calls it for its one robot, a hosting ``agents`` process once per tick for all
-the robots it hosts. The policy is anything with the DESIGN.md signature
+the robots it hosts. The policy is anything with the docs/DESIGN.md signature
 ``(Y [B, k, d], mask [B, k]) -> [B, m]`` (today the TorchScript :class:`LoadedPolicy`); a
 runtime swap (ONNX) changes what is passed in, not this function.
 

@@ -1,4 +1,4 @@
-"""The rclpy QoS profiles of the topics, one per topic (DESIGN.md), built from the ROS-free
+"""The rclpy QoS profiles of the topics, one per topic (docs/DESIGN.md), built from the ROS-free
 table :mod:`.qos_specs` (which says why each profile is what it is; the bags the project
 writes carry the same profiles)."""
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

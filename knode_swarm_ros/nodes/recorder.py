@@ -4,7 +4,7 @@ Subscribes to ``robot_<i>/odom`` for robots 0 .. n-1 and to ``simulator/status``
 ``recorder/status`` (JSON: ready once every robot was heard, ``saved`` at the end),
 ``recorder/progress`` (std_msgs/Int64, the newest step up to which every frame is complete:
 the simulator's lockstep flow control) and live ``recorder/avd`` / ``recorder/amd``
-(std_msgs/Float64). It writes ``output`` (the DESIGN.md trajectory format, one trajectory,
+(std_msgs/Float64). It writes ``output`` (the docs/DESIGN.md trajectory format, one trajectory,
 atomically) when the simulator reports ``done`` and every frame up to the final one is here
 (or ``grace_period`` later, filling gaps), and also when stopped with Ctrl-C or SIGTERM.
 """

@@ -1,7 +1,7 @@
 """The simulated swarm, without ROS: state, commands, integration, lockstep bookkeeping.
 
 :class:`SwarmSim` holds the states ``[n, d]`` of robots ``0 .. n-1`` and the newest command of
-each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step` (DESIGN.md,
+each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step` (docs/DESIGN.md,
 "Rollout semantics"), or, in ground-truth mode, with the Tanner / boids stepper of
 :mod:`knode_swarm_ros.core.groundtruth`, which ignores commands.
 
@@ -12,7 +12,7 @@ each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step`
 * realtime: each step uses each robot's newest command (by stamp); a robot whose newest command
   is older than ``command_timeout`` seconds of simulated time (or that never sent one) is stopped.
 
-Stopping follows DESIGN.md: a velocity-commanded robot gets zero velocity, an acceleration-
+Stopping follows docs/DESIGN.md: a velocity-commanded robot gets zero velocity, an acceleration-
 commanded one brakes to rest at the saturated deceleration
 (:func:`knode_swarm_ros.core.saturation.stop_command` with ``stop_limit``); it never coasts.
 
