@@ -1,5 +1,8 @@
 """What one robot's controller does, without ROS: the agent node only wires it to topics.
 
+(Over 400 lines on purpose: receiving, lockstep waiting, realtime ticks, stopping and the
+command are one robot's state machine; split apart they would share most of their fields.)
+
 :class:`AgentLogic` files every state it hears in the core's :class:`DelayBuffer`, drops and
 counts what a real network delivers badly, and turns what it heard into one command with the
 core's neighbour-matrix builder and the policy file's controller:
