@@ -1,8 +1,7 @@
 """Per-agent /diagnostics: the ROS-free judgement (knode_swarm_ros/nodes/agent_health.py)."""
 import pytest
 
-pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
-
+import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 from knode_swarm_ros.nodes.agent_health import ERROR, OK, WARN, assess  # noqa: E402
 from knode_swarm_ros.nodes.agent_logic import DROP_REASONS  # noqa: E402
 

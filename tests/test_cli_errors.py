@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("torch")  # the training commands import torch
+import torch  # noqa: F401,E402  (a broken install must fail, not skip)
 
 from knode_swarm_ros.core import PolicyError, TrajectoryError  # noqa: E402
 from knode_swarm_ros.core.cli import cli, parse_set  # noqa: E402

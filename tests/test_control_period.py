@@ -103,7 +103,7 @@ def _line_swarm(T=6):
 
 
 def test_period_samples_against_a_hand_built_example():
-    pytest.importorskip('torch')
+    import torch  # noqa: F401,E402  (a broken install must fail, not skip)
     from training.samples import make_samples
     states = _line_swarm()
     # ratio 2 (policy dt = 2 frames), tau 1 policy step = 2 frames of delay, every start frame
@@ -171,7 +171,7 @@ def _held_teacher_data(tmp_path, hold=5, steps=40, trajectories=5, n=6, seed=0):
 
 
 def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path):
-    torch = pytest.importorskip('torch')
+    import torch  # noqa: F401,E402  (a broken install must fail, not skip)
     from knode_swarm_ros.core import load_policy
     from training.config import normalise_config
     from training.trainer import Trainer
@@ -196,7 +196,7 @@ def test_training_for_20hz_from_100hz_data_recovers_the_held_controller(tmp_path
 
 
 def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(tmp_path, capsys):
-    pytest.importorskip('torch')
+    import torch  # noqa: F401,E402  (a broken install must fail, not skip)
     from training.config import normalise_config
     from training.train import main as train_main
     from training.trainer import Trainer
@@ -232,7 +232,7 @@ def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(
 
 # --- the shipped 20 Hz policy and the realtime defaults ----------------------------------
 def test_shipped_20hz_policy_rolls_out_at_dt_005_from_held_out_starts():
-    pytest.importorskip('torch')
+    import torch  # noqa: F401,E402  (a broken install must fail, not skip)
     from knode_swarm_ros.core import amd, avd, load_policy, rollout, shipped_policy_path
     from knode_swarm_ros.core.groundtruth.tanner import initial_states
     from knode_swarm_ros.core.geometry import min_pair_distance
@@ -254,7 +254,7 @@ def test_shipped_20hz_policy_rolls_out_at_dt_005_from_held_out_starts():
 
 
 def test_realtime_defaults_pick_the_policy_of_the_rate(tmp_path):
-    pytest.importorskip('torch')
+    import torch  # noqa: F401,E402  (a broken install must fail, not skip)
     from knode_swarm_ros.core import shipped_policy_path
     from knode_swarm_ros.nodes import swarm
     from knode_swarm_ros.nodes.control_period import shipped_policy_for_rate

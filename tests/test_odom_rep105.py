@@ -91,7 +91,7 @@ def test_child_frames_name_their_robot():
 
 
 def test_foreign_driver_with_real_yaw_decodes_like_our_own_odometry():
-    pytest.importorskip('nav_msgs.msg', reason='the ROS message packages (ros-jazzy-* wheels) are not installed')
+    import nav_msgs.msg  # noqa: F401,E402  (a broken install must fail, not skip)
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
     from knode_swarm_ros.nodes.conversions import odom_from_cdr, odom_to_cdr, odom_to_state, state_to_odom

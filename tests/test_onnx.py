@@ -20,10 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip('torch')
-pytest.importorskip('onnxruntime')
-pytest.importorskip('onnx')
-
+import torch  # noqa: F401,E402  (a broken install must fail, not skip)
+import onnxruntime  # noqa: F401,E402  (a broken install must fail, not skip)
+import onnx  # noqa: F401,E402  (a broken install must fail, not skip)
 from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, PolicyError, export_policy,  # noqa: E402
                                   load_policy, load_runtime, rollout, shipped_policy_path)
 from knode_swarm_ros.core.policy_runtime import load_onnx_policy  # noqa: E402

@@ -12,7 +12,7 @@ import signal
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
 from knode_swarm_ros.core import load_policy, load_trajectories  # noqa: E402
 from knode_swarm_ros.core.rollout import rollout  # noqa: E402

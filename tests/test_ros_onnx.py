@@ -13,10 +13,9 @@ import textwrap
 import numpy as np
 import pytest
 
-pytest.importorskip('rclpy', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
-pytest.importorskip('onnxruntime')
-pytest.importorskip('onnx')
-
+import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
+import onnxruntime  # noqa: F401,E402  (a broken install must fail, not skip)
+import onnx  # noqa: F401,E402  (a broken install must fail, not skip)
 from knode_swarm_ros.core import load_runtime, load_trajectories, rollout  # noqa: E402
 
 pytestmark = pytest.mark.ros

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("matplotlib")
-
+import torch  # noqa: F401,E402  (a broken install must fail, not skip)
+import matplotlib  # noqa: F401,E402  (a broken install must fail, not skip)
 from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy, save_trajectories  # noqa: E402
 from knode_swarm_ros.core.groundtruth import simulate  # noqa: E402
 from training.boids_stats import group_labels, subgroups  # noqa: E402

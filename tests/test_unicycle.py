@@ -84,7 +84,7 @@ def test_unicycle_step_is_exact_on_arcs():
 
 
 def test_brake_command_stops_a_double_integrator_within_the_limit():
-    pytest.importorskip('rclpy.lifecycle', reason='rclpy (ros-jazzy-rclpy wheel) is not installed')
+    import rclpy.lifecycle  # noqa: F401,E402  (a broken install must fail, not skip)
     from knode_swarm_ros.nodes.agent_lifecycle import brake_command
     z = np.array([1.0, 2.0, 0.03, -0.5])
     u = brake_command('acceleration', z, 0.01, 10.0)
