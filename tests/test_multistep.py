@@ -16,21 +16,11 @@ from training.objectives import loss_scales
 from training.multistep import (Windows, augment_windows, horizon_at, rollout_windows, window_loss,
                                 window_scales)
 from training.trainer import Trainer
+from test_training import _swarm  # noqa: E402  (the same random swarm states as the one-step tests)
 
 torch.set_num_threads(1)
 FLOCK = get_scenario("flock2d")
 BOIDS = get_scenario("boids3d")
-
-
-def _swarm(rng, S, n, spec, spread=2.0):
-    z = np.zeros((S, n, spec.state_dim))
-    z[..., :spec.position_dim] = rng.uniform(-spread, spread, size=(S, n, spec.position_dim))
-    if spec.name == "flock2d":
-        z[..., 2:] = rng.normal(0, 1, size=(S, n, 2))
-    else:
-        h = rng.normal(size=(S, n, 3))
-        z[..., 3:] = h / np.linalg.norm(h, axis=-1, keepdims=True)
-    return z
 
 
 def _numpy_fn(module):
