@@ -156,7 +156,9 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
-        self.unicycle = AgentUnicycle(self, robot_id, self.spec, mode, control_rate, qos.COMMAND)  # off by default
+        self.unicycle = AgentUnicycle(self, robot_id, self.spec, mode,  # off by default; lockstep: period dt
+                                      control_rate if mode == 'realtime' else 1.0 / policy.dt, qos.COMMAND,
+                                      self.twist_frame)
         self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
 
         self.mode = mode
@@ -199,8 +201,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
             return
         robot = topic_robot if is_robot_frame(frame, topic_robot) else None
-        if self.unicycle.enabled and robot == self.logic.me:
-            self.unicycle.observe_own(*odom_fields_from_cdr(data)[2:])
+        if self.unicycle.enabled and robot is not None:  # the policy sees the point ahead (unicycle_state)
+            z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
         now = self.get_clock().now().nanoseconds
         if not self._through_link(robot, stamp, z, now):
             return

@@ -9,8 +9,14 @@ orientation; the velocity of the point ahead from its twist (linear.x in the bod
 REP 105 and every differential-drive driver publish it, and angular.z). A stop (stale own
 state) brakes to rest within the acceleration limits.
 
-Real time only: a unicycle command pairs with no lockstep step of this project's simulator
-(whose robots are double integrators or first-order).
+What the policy sees (``unicycle_state``): ``point`` (default) the position and velocity of
+every robot's point ahead (own and neighbours, from their Odometry: all robots are taken to be
+unicycles with the same lookahead), so that the closed loop is the policy's double-integrator
+swarm while no limit binds; ``axle`` the Odometry as it is (the axle centres), which measured
+far worse (docs/ros.md, "Differential-drive robots").
+
+Lockstep works with TwistStamped (the stamp says which state a command answers; the simulator's
+``robot_model: unicycle``); then the control period is the policy's dt.
 """
 from __future__ import annotations
 
@@ -19,19 +25,23 @@ from typing import Any, Dict, Optional
 
 import numpy as np
 
-from ..core.unicycle import UnicycleLimits, UnicycleMapper, point_ahead
+from ..core.unicycle import UnicycleLimits, UnicycleMapper
 from .common import ConfigError, robot_frame
+from .odom_mapping import fields_to_point_state, rotate_inverse, yaw_of
 
-__all__ = ['AgentUnicycle', 'COMMAND_INTERFACES']
+__all__ = ['AgentUnicycle', 'COMMAND_INTERFACES', 'UNICYCLE_STATES']
 
 #: ``command_interface`` values: '' (the policy's own: accel or twist), accel, twist, unicycle.
 COMMAND_INTERFACES = ('', 'accel', 'twist', 'unicycle')
+#: ``unicycle_state`` values: what the policy sees of each robot.
+UNICYCLE_STATES = ('point', 'axle')
 
 
 class AgentUnicycle:
     """Declares the unicycle parameters on ``node``; maps and publishes commands when enabled."""
 
-    def __init__(self, node, robot_id: int, spec, mode: str, control_rate: float, qos_profile):
+    def __init__(self, node, robot_id: int, spec, mode: str, control_rate: float, qos_profile,
+                 twist_frame: str = 'body'):
         from .params import declare  # rclpy: imported with the node only
         interface = declare(node, 'command_interface', '', "command output: empty (the policy's: accel for "
                             'acceleration, twist for velocity policies), accel, twist, or unicycle (differential '
@@ -39,6 +49,9 @@ class AgentUnicycle:
         stamped = declare(node, 'unicycle_stamped', True, 'unicycle: TwistStamped (true) or Twist (false)')
         lookahead = declare(node, 'unicycle_lookahead', 0.2, 'unicycle: distance of the controlled point ahead '
                             'of the axle (m)', float_range=(1e-6, 1e3))
+        state = declare(node, 'unicycle_state', 'point', 'unicycle: what the policy sees of every robot: point '
+                        '(its point ahead; all robots unicycles with this lookahead) or axle (the Odometry as is)',
+                        choices=UNICYCLE_STATES)
         limits = {name: declare(node, name, 0.0, f'unicycle: {text} (0: none)', float_range=(0.0, 1e6))
                   for name, text in (('max_linear_speed', '|linear.x| limit, m/s'),
                                      ('max_angular_speed', '|angular.z| limit, rad/s'),
@@ -50,15 +63,18 @@ class AgentUnicycle:
                               f"policy: use {natural!r} (or empty) or 'unicycle'")
         self.enabled = interface == 'unicycle'
         self.yaw: Optional[float] = None
+        self.turn = 0.0
         self.point_velocity = np.zeros(2)
+        self.point = state == 'point'
+        self.twist_frame = twist_frame
         if not self.enabled:
             return
         if spec.position_dim != 2:
             raise ConfigError(f"parameter 'command_interface' = 'unicycle' needs a planar scenario, "
                               f'not {spec.name}')
-        if mode != 'realtime':
-            raise ConfigError("parameter 'command_interface' = 'unicycle' needs mode 'realtime' "
-                              f'(got {mode!r}): unicycle commands pair with no lockstep step')
+        if mode != 'realtime' and not stamped:
+            raise ConfigError("parameter 'command_interface' = 'unicycle' with unicycle_stamped false needs mode "
+                              f"'realtime' (got {mode!r}): a Twist has no stamp to pair with a lockstep step")
         from geometry_msgs.msg import Twist, TwistStamped
         self.limits = UnicycleLimits(lookahead, **limits)
         try:
@@ -70,12 +86,16 @@ class AgentUnicycle:
         self.msg_type = TwistStamped if self.stamped else Twist
         self.publisher = node.create_publisher(self.msg_type, f'robot_{int(robot_id)}/cmd_vel', qos_profile)
 
-    def observe_own(self, pose, linear, angular) -> None:
-        """Heading and point-ahead velocity from the own Odometry fields (body-frame twist)."""
-        qx, qy, qz, qw = pose[3:7]
-        self.yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-        _, self.point_velocity = point_ahead(0.0, 0.0, self.yaw, float(linear[0]), float(angular[2]),
-                                             self.limits.lookahead)
+    def observe(self, own: bool, pose, linear, angular, z: np.ndarray) -> np.ndarray:
+        """The state ``[4]`` the policy sees of a robot, from its Odometry fields (pose [7], twist
+        linear [3], angular [3]) and their decoding ``z``; notes heading, turn rate and the point
+        ahead's velocity of the own robot (``own``)."""
+        if self.twist_frame == 'world':  # a driver that deviates from REP 105: into the body frame first
+            linear = rotate_inverse(pose[3:7], linear)
+        point = fields_to_point_state(pose[:3], pose[3:7], linear, angular, self.limits.lookahead)
+        if own:
+            self.yaw, self.turn, self.point_velocity = yaw_of(pose[3:7]), float(angular[2]), point[2:]
+        return point if self.point else z
 
     def publish(self, stamp_msg, command) -> None:
         """Map and publish the agent's command (``command.stop``: brake to rest)."""
@@ -84,7 +104,7 @@ class AgentUnicycle:
         if command.stop:
             v, w = self.mapper.stop()
         else:
-            v, w = self.mapper(command.value, self.yaw, self.point_velocity)
+            v, w = self.mapper(command.value, self.yaw, self.point_velocity, self.turn)
         self.publish_raw(stamp_msg, v, w)
 
     def publish_raw(self, stamp_msg, v: float, w: float) -> None:

@@ -49,7 +49,8 @@ from .odom_mapping import TWIST_FRAMES, fields_to_state, state_to_fields
 from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
-           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr', 'odom_fields_from_cdr',
+           'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'fields_to_cdr', 'odom_from_cdr',
+           'odom_fields_from_cdr',
            'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'msg_to_command']
 
 ScenarioLike = Union[str, Scenario]
@@ -137,9 +138,16 @@ def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Option
                 frame_id: str = WORLD_FRAME, child_frame_id: Optional[str] = None) -> bytes:
     """The serialized form of ``state_to_odom(robot, ns, z, scenario, velocity, frame_id,
     child_frame_id)``, built directly."""
+    position, quaternion, linear = state_to_fields(z, _spec(scenario), velocity)
+    return fields_to_cdr(robot, ns, position, quaternion, linear, (0.0, 0.0, 0.0), frame_id, child_frame_id)
+
+
+def fields_to_cdr(robot: int, ns: int, position, quaternion, linear, angular, frame_id: str = WORLD_FRAME,
+                  child_frame_id: Optional[str] = None) -> bytes:
+    """A serialized Odometry of the given pose (position ``[3]``, orientation ``[4]``) and body
+    twist (linear ``[3]``, angular ``[3]``), covariances zero (e.g. ``odom_mapping.unicycle_fields``)."""
     if ns < 0:
         raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
-    position, quaternion, linear = state_to_fields(z, _spec(scenario), velocity)
     buf = bytearray(_CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
     _put_string(buf, frame_id)
@@ -147,7 +155,7 @@ def odom_to_cdr(robot: int, ns: int, z, scenario: ScenarioLike, velocity: Option
     _pad(buf, 8)
     buf.extend(struct.pack('<7d', *position, *quaternion))
     buf.extend(_ZEROS_36)
-    buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
+    buf.extend(struct.pack('<6d', *linear, *angular))
     buf.extend(_ZEROS_36)
     return bytes(buf)
 

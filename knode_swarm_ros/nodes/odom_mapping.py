@@ -44,7 +44,8 @@ import numpy as np
 from ..core.scenarios import Scenario, get_scenario
 from .orientation import heading_to_quaternion, quaternion_to_heading
 
-__all__ = ['TWIST_FRAMES', 'rotate', 'rotate_inverse', 'state_to_fields', 'fields_to_state']
+__all__ = ['TWIST_FRAMES', 'rotate', 'rotate_inverse', 'state_to_fields', 'fields_to_state', 'unicycle_fields',
+           'yaw_of', 'fields_to_point_state']
 
 #: Frames a twist may be given in: ``body`` (REP 105 child frame) or ``world``.
 TWIST_FRAMES = ('body', 'world')
@@ -126,3 +127,33 @@ def fields_to_state(position, quaternion, linear, scenario: Union[str, Scenario]
         return np.array([position[0], position[1], v[0], v[1]], dtype=np.float64)
     h = quaternion_to_heading(np.asarray(quaternion, dtype=np.float64))
     return np.array([position[0], position[1], position[2], h[0], h[1], h[2]], dtype=np.float64)
+
+
+# --- unicycle robots (simulator robot_model: unicycle; agent command_interface: unicycle) -------
+def unicycle_fields(pose, v: float, omega: float):
+    """(position, orientation, twist.linear, twist.angular) of a unicycle at ``pose [3]`` =
+    (x, y, theta) moving with forward speed ``v`` and turn rate ``omega``, as a differential-drive
+    driver publishes them (REP 105): the yaw quaternion, linear = (v, 0, 0) and angular =
+    (0, 0, omega) in the body frame. :func:`fields_to_state` reads them back as (x, y, v cos theta,
+    v sin theta)."""
+    half = 0.5 * float(pose[2])
+    return ((float(pose[0]), float(pose[1]), 0.0), (0.0, 0.0, math.sin(half), math.cos(half)),
+            (float(v), 0.0, 0.0), (0.0, 0.0, float(omega)))
+
+
+def yaw_of(quaternion) -> float:
+    """Rotation about +z (rad) of the orientation (x, y, z, w)."""
+    x, y, z, w = (float(c) for c in quaternion)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def fields_to_point_state(position, quaternion, linear, angular, lookahead: float) -> np.ndarray:
+    """State ``[4]`` of the point ``lookahead`` ahead of the body origin along the body x axis,
+    from Odometry fields (twist in the body frame, REP 105): position + l (cos yaw, sin yaw),
+    velocity = R(yaw) (linear.x, linear.y + l angular.z). What the unicycle agent's policy sees
+    (``unicycle_state: point``, :func:`knode_swarm_ros.core.unicycle.point_state`)."""
+    yaw = yaw_of(quaternion)
+    c, s = math.cos(yaw), math.sin(yaw)
+    bx, by = float(linear[0]), float(linear[1]) + lookahead * float(angular[2])
+    return np.array([float(position[0]) + lookahead * c, float(position[1]) + lookahead * s,
+                     c * bx - s * by, s * bx + c * by], dtype=np.float64)

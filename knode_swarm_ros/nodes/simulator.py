@@ -28,13 +28,14 @@ from . import qos
 from .common import (CLOCK_TOPIC, EXIT_OK, MARKERS_TOPIC, MODES,
                      RECORDER_PROGRESS_TOPIC, RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError,
                      agent_status_topic, command_topic, odom_topic, parse_status, status_json)
-from .conversions import command_msg_type, msg_to_command, odom_to_cdr, time_msg
+from .conversions import command_msg_type, fields_to_cdr, msg_to_command, odom_to_cdr, time_msg
 from .executor import run_node
 from .markers import swarm_markers
 from .params import check_overrides, declare
 from .reporting import write_json_report
 from .simulator_lifecycle import LifecycleConfig, SimLifecycle
 from .simulator_logic import SwarmSim, initial_state, initial_state_from_file, make_ground_truth
+from .simulator_robot import command_subscription, declare_robot_model, make_robot_model, unicycle_odom_fields
 
 __all__ = ['SimulatorNode', 'main']
 
@@ -97,6 +98,7 @@ class SimulatorNode(Node):
                                        'the log (0: none)', float_range=(0.0, 86_400.0))
         self.exit_when_done = declare(self, 'exit_when_done', True, 'exit after the last step (otherwise keep '
                                       'publishing the final state until stopped)')
+        robot_model, limits = declare_robot_model(self)
         check_overrides(self, sys.argv)
 
         if init:
@@ -112,7 +114,8 @@ class SimulatorNode(Node):
             else:
                 gt = None
             origin = {'seed': seed}
-        self.sim = SwarmSim(scenario, z0, dt, mode, command_timeout, gt, stop_limit)
+        robots_model = make_robot_model(robot_model, scenario, z0, ground_truth, limits)  # None: point masses
+        self.sim = SwarmSim(scenario, z0, dt, mode, command_timeout, gt, stop_limit, robots_model)
         self.spec = spec
         self.mode = mode
         self.n = self.sim.n
@@ -120,7 +123,7 @@ class SimulatorNode(Node):
         self.publish_every = 1 if mode == 'lockstep' else max(1, int(round(1.0 / (publish_rate * dt))))
         self.meta = {'scenario': scenario, 'robots': self.n, 'mode': mode, 'dt': dt, 'steps': self.steps,
                      'publish_every': self.publish_every, 'ground_truth': ground_truth,
-                     'variant': variant or 'paper', **origin}
+                     'variant': variant or 'paper', 'robot_model': robot_model, **origin}
 
         self.finished = Future()
         self.exit_code = EXIT_OK
@@ -137,7 +140,9 @@ class SimulatorNode(Node):
         self.clock_pub = self.create_publisher(ClockMsg, CLOCK_TOPIC, qos.CLOCK)
         self.status_pub = self.create_publisher(String, SIMULATOR_STATUS_TOPIC, qos.STATUS)
         self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, qos.MARKERS)
-        if gt is None:
+        if robots_model is not None:  # differential drive: TwistStamped (linear.x, angular.z) on cmd_vel
+            self.cmd_subs = command_subscription(self, self.n, self._on_twist, qos.COMMAND)
+        elif gt is None:
             ctype = command_msg_type(spec)
             self.cmd_subs = [self.create_subscription(ctype, command_topic(r, spec.command),
                                                       partial(self._on_command, r), qos.COMMAND)
@@ -193,6 +198,11 @@ class SimulatorNode(Node):
     def publish_frame(self) -> None:
         ns = self.sim.stamp_ns
         velocity = self.spec.command == 'velocity'
+        if self.sim.robot is not None:  # REP 105 as a differential-drive driver: yaw, body twist (v, omega)
+            for r, pub in enumerate(self.odom_pubs):
+                pub.publish(fields_to_cdr(r, ns, *unicycle_odom_fields(self.sim.robot, r), self.frame_id))
+            self.clock_pub.publish(ClockMsg(clock=time_msg(ns)))
+            return
         for r, pub in enumerate(self.odom_pubs):
             # serialized directly: the bytes of conversions.state_to_odom, without rclpy's conversion
             pub.publish(odom_to_cdr(r, ns, self.sim.states[r], self.spec, self.sim.applied[r] if velocity else None,
@@ -209,6 +219,9 @@ class SimulatorNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_command(self, robot: int, msg) -> None:
         ns, u = msg_to_command(msg, self.spec)
+        self.life.on_command(robot, ns, u, time.monotonic())
+
+    def _on_twist(self, robot: int, ns: int, u) -> None:
         self.life.on_command(robot, ns, u, time.monotonic())
 
     def _on_agent_status(self, robot: int, msg: String) -> None:

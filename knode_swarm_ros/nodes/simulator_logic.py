@@ -138,10 +138,14 @@ class SwarmSim:
         command_timeout: realtime: commands older than this (simulated seconds) count as zero.
         ground_truth: optional stepper (``step() -> [1, n, d]``) that replaces the commands.
         stop_limit: per-axis deceleration limit of a braking stop (None or 0: rest in one step).
+        robot: None (the scenario's point masses) or a flock2d robot model built from ``z0``
+            (:class:`knode_swarm_ros.core.unicycle.UnicycleRobots`): commands are its (v, omega), a
+            stop commands (0, 0) (the base brakes within its limits), the states are its
+            ``states()``.
     """
 
     def __init__(self, scenario: str, z0, dt: float, mode: str = 'lockstep', command_timeout: float = 0.5,
-                 ground_truth=None, stop_limit: Optional[float] = None):
+                 ground_truth=None, stop_limit: Optional[float] = None, robot=None):
         self.spec: Scenario = get_scenario(scenario)
         z0 = np.array(z0, dtype=np.float64)
         if z0.ndim != 2 or z0.shape[1] != self.spec.state_dim or z0.shape[0] < 1:
@@ -160,8 +164,11 @@ class SwarmSim:
         if stop_limit is not None and not (np.isfinite(stop_limit) and stop_limit >= 0):
             raise ConfigError(f"parameter 'command_limit' must be >= 0, got {stop_limit}")
         self.stop_limit = float(stop_limit) if stop_limit else None
+        if robot is not None and (ground_truth is not None or self.spec.name != 'flock2d'):
+            raise ConfigError("parameter 'robot_model': a unicycle robot model needs flock2d and no ground truth")
+        self.robot = robot
         self.step = 0
-        self.states = z0
+        self.states = z0 if robot is None else robot.states()
         m = self.spec.command_dim
         self.commands = np.zeros((self.n, m))      # newest command of each robot
         self.command_step = np.full(self.n, -1, dtype=np.int64)  # its stamp's step (-1: none yet)
@@ -271,13 +278,19 @@ class SwarmSim:
                 self.counters.zeroed += int(np.count_nonzero(old))
                 command[old] = self.stop_commands()[old]
             self.applied = command
-            self.states = zoh_step(self.states, command, self.spec, self.dt)
+            if self.robot is not None:
+                self.robot.step(command, self.dt)
+                self.states = self.robot.states()
+            else:
+                self.states = zoh_step(self.states, command, self.spec, self.dt)
         self.step += 1
         self.answered = set()
         return self.states
 
     def stop_commands(self) -> np.ndarray:
         """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
+        if self.robot is not None:  # (v, omega) = 0: the base brakes within its own limits
+            return np.zeros((self.n, 2))
         v = self.states[:, self.spec.velocity] if self.spec.command == 'acceleration' else \
             np.zeros((self.n, self.spec.command_dim))
         return stop_command(self.spec.command, v, self.stop_limit, self.dt)
