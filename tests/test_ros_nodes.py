@@ -377,9 +377,10 @@ def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_p
     from geometry_msgs.msg import Twist, TwistStamped
     from knode_swarm_ros.core import load_policy, neighbour_matrix_single
     from knode_swarm_ros.core.unicycle import point_ahead
+    state = 'point' if stamped else 'axle'   # what the policy sees: the point 0.2 ahead, or the Odometry as is
     agent = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime', control_rate=20.0,
                    state_timeout=60.0, command_interface='unicycle', unicycle_stamped=stamped,
-                   unicycle_lookahead=0.2, max_linear_speed=50.0, max_angular_speed=500.0)
+                   unicycle_lookahead=0.2, max_linear_speed=50.0, max_angular_speed=500.0, unicycle_state=state)
     io = ros.node('test_io')
     pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
     got = []
@@ -399,11 +400,12 @@ def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_p
 
     assert ros.spin_until(lambda: len(got) >= 2 and agent.logic.ready, each=publish, timeout=60)
     policy = load_policy(flock_policy)
-    Y, mask = neighbour_matrix_single(0, Z[0], Z, 2, policy.d_cr, policy.k)
+    pos, point_v = point_ahead(0.0, 0.0, yaw, speed, turn, 0.2)
+    seen = Z.copy() if state == 'axle' else np.array([[*pos, *point_v], [1.2, 0.5, 0.2, -0.1]])  # robot 1: yaw 0
+    Y, mask = neighbour_matrix_single(0, seen[0], seen, 2, policy.d_cr, policy.k)
     u = np.clip(policy(Y[None], mask[None])[0], -10.0, 10.0)
-    _, point_v = point_ahead(0.0, 0.0, yaw, speed, turn, 0.2)
     want = point_v + u / 20.0
-    c, s = np.cos(yaw), np.sin(yaw)
+    c, s = np.cos(yaw + turn / 40.0), np.sin(yaw + turn / 40.0)   # the heading in the middle of the period
     v, w = c * want[0] + s * want[1], (-s * want[0] + c * want[1]) / 0.2
     msg = got[-1]
     twist = msg.twist if stamped else msg
@@ -412,8 +414,9 @@ def test_agent_unicycle_mode_publishes_cmd_vel_from_the_point_ahead(ros, flock_p
     if stamped:
         assert msg.header.frame_id == 'robot_0/base_link'
     assert agent._status()['unicycle']['periods'] >= 2
-    with pytest.raises(ConfigError, match='realtime'):
-        _agent(ros, id=1, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle')
+    with pytest.raises(ConfigError, match='realtime'):   # a Twist has no stamp: no lockstep
+        _agent(ros, id=1, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle',
+               unicycle_stamped=False)
     with pytest.raises(ConfigError, match='command_interface'):
         _agent(ros, id=1, robots=2, policy=str(flock_policy), command_interface='twist')
 

@@ -20,7 +20,6 @@ Lockstep works with TwistStamped (the stamp says which state a command answers; 
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Dict, Optional
 
 import numpy as np

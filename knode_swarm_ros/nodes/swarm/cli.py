@@ -7,7 +7,7 @@ import sys
 
 from ..agent_link import add_link_arguments
 from ..common import EXIT_CONFIG, EXIT_OK, MODES, ConfigError
-from . import hosting
+from . import hosting, robot_model
 from .console import say as _say
 from .plan import DOMAIN_RANGE, plan_run
 from .supervise import run
@@ -59,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
     add_link_arguments(p)
+    robot_model.add_arguments(p)
     p.add_argument('--managed', action='store_true', help='agents as managed (lifecycle) nodes: configure every '
                    'agent, then activate them together')
     hosting.add_arguments(p)

@@ -41,6 +41,7 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
            'startup_timeout': float(plan.startup_timeout), 'wait_for_agents': not gt, 'wait_for_recorder': True,
            'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json'),
            'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0)}
+    sim.update(plan.robot_model.get('simulator', {}))
     rec = {'scenario': plan.scenario, 'robots': plan.robots, 'output': str(plan.record), 'dt': float(plan.dt),
            'bag': plan.bag, 'use_sim_time': True}
     files = {plan.run_dir / 'simulator.yaml': sim, plan.run_dir / 'recorder.yaml': rec}
@@ -55,6 +56,7 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
                  'state_timeout': float(plan.state_timeout), 'parity_batch': plan.parity_batch, 'use_sim_time': True,
                  'policy_runtime': plan.policy_runtime, **plan.link}
         agent['managed'] = bool(plan.managed)
+        agent.update(plan.robot_model.get('agent', {}))
         files[plan.run_dir / 'agent.yaml'] = agent
         params = str(plan.run_dir / 'agent.yaml')
         if plan.managed:  # configures every agent, then activates them together, then exits 0

@@ -15,7 +15,7 @@ from typing import Any, Dict, Optional
 
 from ..agent_link import link_parameters
 from ..common import ConfigError
-from . import hosting
+from . import hosting, robot_model
 
 __all__ = ['Plan', 'plan_run', 'available_memory_mb', 'DOMAIN_RANGE', 'MAX_ROBOTS', 'AGENT_MB', 'NODE_MB']
 
@@ -61,6 +61,7 @@ class Plan:
     parity_batch: bool = True
     policy_runtime: str = 'auto'
     link: Dict[str, Any] = field(default_factory=dict)   # the agents' link_* parameters ({}: off)
+    robot_model: Dict[str, Dict] = field(default_factory=dict)  # --robot-model: simulator / agent parameters
     managed: bool = False
     bag: str = ''                    # absolute path or ''
     netns: Optional[str] = None
@@ -193,6 +194,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
             raise ConfigError('--managed runs one lifecycle agent process per robot; it cannot be combined with '
                               f'--agents-per-process {args.agents_per_process}')
         per_process = 1
+    robot_params = robot_model.robot_model_parameters(args, scenario, per_process)
     hosting.check_netns(args.netns)
     if not args.ground_truth:
         _check_memory(robots, per_process)
@@ -227,5 +229,6 @@ def plan_run(args: argparse.Namespace) -> Plan:
                 state_timeout=float(args.state_timeout), lockstep_timeout=float(args.lockstep_timeout),
                 startup_timeout=float(args.startup_timeout), timeout=float(args.timeout),
                 parity_batch=not args.no_parity_batch, policy_runtime=args.policy_runtime, link=link,
+                robot_model=robot_params,
                 managed=bool(args.managed), bag=os.path.abspath(args.bag) if args.bag else '', netns=args.netns,
                 quiet=bool(args.quiet), on_agent_exit=args.on_agent_exit, keep_logs=bool(args.keep_logs))
