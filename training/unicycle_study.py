@@ -55,9 +55,9 @@ def unicycle_rollout(policy, z0: np.ndarray, steps: int, limits, d_cr: float, k:
     limits = list(limits) if isinstance(limits, (list, tuple)) else [limits] * S
     sims = [SwarmSim('flock2d', z0[s], dt, 'lockstep', robot=UnicycleRobots(z0[s], limits[s])) for s in range(S)]
     mappers = [[UnicycleMapper(limits[s], 'acceleration', dt) for _ in range(n)] for s in range(S)]
-    for s in range(S):  # a base already moving: the agent's last command is its motion
+    for s in range(S):  # a base already moving: the agent starts its limits from its motion (as AgentUnicycle)
         for i in range(n):
-            mappers[s][i].last = (float(sims[s].robot.speed[i]), 0.0)
+            mappers[s][i].last = (float(sims[s].robot.speed[i]), float(sims[s].robot.turn[i]))
     out = np.empty((S, steps + 1, n, 4))
     seen = np.empty((S, n, 4))
     for t in range(steps + 1):

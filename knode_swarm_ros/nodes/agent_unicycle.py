@@ -94,6 +94,8 @@ class AgentUnicycle:
         point = fields_to_point_state(pose[:3], pose[3:7], linear, angular, self.limits.lookahead)
         if own:
             self.yaw, self.turn, self.point_velocity = yaw_of(pose[3:7]), float(angular[2]), point[2:]
+            if self.mapper.periods == 0:  # a robot already moving: its acceleration limits start from its motion
+                self.mapper.last = (float(linear[0]), float(angular[2]))
         return point if self.point else z
 
     def publish(self, stamp_msg, command) -> None:
