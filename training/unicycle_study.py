@@ -1,6 +1,7 @@
 """The flock2d policy on differential-drive robots, offline: unicycles vs double integrators.
 
     python -m training.unicycle_study --out out/unicycle          # flock2d_20hz.pt, 10 starts x 600 steps
+    python -m training.unicycle_study --out out/unicycle --ros    # and once through ROS (swarm, lockstep)
 
 Exactly what ``swarm --robot-model unicycle --mode lockstep`` runs, without ROS: the simulator's
 stepping (:class:`knode_swarm_ros.nodes.simulator_logic.SwarmSim` with the unicycle bases of
@@ -124,6 +125,43 @@ def run(policy_path: str, out: str, starts: int = 10, robots: int = 10, steps: i
     return results
 
 
+def ros_confirm(policy_path: str, out: str, steps: int, seed: int, bind_speed: float, log=print) -> Dict[str, Any]:
+    """The binding case once through ROS: ``swarm --robot-model unicycle --mode lockstep`` with 10
+    robots from the simulator's seeded start, against the offline loop and the double integrators
+    from the same start. Writes ``DIR/ros.npz`` and returns the figures (``results.json['ros']``)."""
+    import subprocess
+    from knode_swarm_ros.core import load_trajectories
+    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    policy = load_policy(policy_path)
+    z0 = initial_state('flock2d', 10, seed)[0][None]
+    di = rollout(policy, z0, steps, 'flock2d', policy.d_cr, policy.k, 0, policy.dt)
+    lim = UnicycleLimits(0.2, round(float(bind_speed * np.linalg.norm(di[0, -1, :, 2:], axis=-1).mean()), 3),
+                         1.8, 1.0, 5.0)
+    record = os.path.join(out, 'ros.npz')
+    cmd = [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--policy', policy_path, '--robots', '10',
+           '--steps', str(steps), '--seed', str(seed), '--mode', 'lockstep', '--record', record, '--no-figure',
+           '--quiet', '--robot-model', 'unicycle', '--max-linear-speed', repr(lim.max_linear_speed),
+           '--max-angular-speed', '1.8', '--max-linear-accel', '1.0', '--max-angular-accel', '5.0']
+    log('$ ' + ' '.join(cmd))
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise KnodeError(f'the ROS run failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}')
+    ros = load_trajectories(record).states[:1]
+    offline, _ = unicycle_rollout(policy, z0, steps, lim, policy.d_cr, policy.k, policy.dt, 'point',
+                                  policy.command_limit)
+    result = {'command': ' '.join(cmd[1:]), 'limits': lim.__dict__,
+              'max_difference_to_offline': float(np.abs(ros - offline).max())}
+    for name, states in (('ros_unicycle', ros), ('double_integrator', di)):
+        final = states[0, -1]
+        result[name] = {'avd': float(avd(final[:, 2:])), 'amd': float(amd(final[:, :2])),
+                        'speed': float(np.linalg.norm(final[:, 2:], axis=-1).mean())}
+    log(f"ROS lockstep, 10 unicycles, binding limits: avd {result['ros_unicycle']['avd']:.3f} amd "
+        f"{result['ros_unicycle']['amd']:.3f} speed {result['ros_unicycle']['speed']:.2f}; double integrator avd "
+        f"{result['double_integrator']['avd']:.3f} amd {result['double_integrator']['amd']:.3f} speed "
+        f"{result['double_integrator']['speed']:.2f}; max |ROS - offline| {result['max_difference_to_offline']:.1e}")
+    return result
+
+
 @cli('python -m training.unicycle_study')
 def main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog='python -m training.unicycle_study', description=__doc__.split('\n\n')[0])
@@ -135,12 +173,18 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument('--seed', type=int, default=2026)
     p.add_argument('--bind-speed', type=float, default=0.5, help='binding top speed as a share of the start\'s '
                    'double-integrator flocking speed; default 0.5')
+    p.add_argument('--ros', action='store_true', help='also run the binding case once through ROS (swarm '
+                   '--robot-model unicycle, lockstep, 10 robots, seed --seed): results.json["ros"]')
     a = p.parse_args(argv)
     if a.starts < 2 or a.steps < 1 or not 0 < a.bind_speed:
         raise KnodeError('--starts must be >= 2, --steps >= 1 and --bind-speed > 0')
     import torch
     torch.set_num_threads(1)
-    run(a.policy, a.out, a.starts, 10, a.steps, a.seed, a.bind_speed)
+    results = run(a.policy, a.out, a.starts, 10, a.steps, a.seed, a.bind_speed)
+    if a.ros:
+        results['ros'] = ros_confirm(os.path.abspath(a.policy), a.out, a.steps, a.seed, a.bind_speed)
+        with open(os.path.join(a.out, 'results.json'), 'w') as fh:
+            json.dump(results, fh, indent=1)
     return 0
 
 
