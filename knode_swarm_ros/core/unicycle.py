@@ -22,9 +22,10 @@ rollout semantics); for a planar ``velocity`` policy it is the command itself.
 
 The body turns by omega T while a command is held, and P's velocity turns with it; mapping at
 the heading predicted for the middle of the period, theta + omega_now T / 2 (omega_now: the turn
-rate now), cancels that rotation to first order. Without it P's velocity drifts by omega T each
-period and a flock2d swarm falls into a spin on the spot (measured offline: mean speed 0.07,
-|omega| 4.9 rad/s, against 2.3 m/s for the double integrators; docs/ros.md).
+rate now), cancels that rotation to first order. Without it P's velocity drifts by omega T each period:
+offline (4 starts, 15 s, flock2d_20hz) the swarm kept half its speed (1.13 against 2.30 m/s for
+the double integrators, |omega| 0.95 rad/s), and with the axle states as well it spun on the
+spot (0.07 m/s, |omega| 4.9 rad/s); with both details 2.25 m/s (docs/ros.md).
 
 Limits, applied in this order each period (:func:`limit_twist`, the one clamp, which the robot
 model :class:`UnicycleRobots` applies too, as a real base does): |v| <= ``max_linear_speed``,
