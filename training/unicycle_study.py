@@ -127,8 +127,9 @@ def run(policy_path: str, out: str, starts: int = 10, robots: int = 10, steps: i
 
 def ros_confirm(policy_path: str, out: str, steps: int, seed: int, bind_speed: float, log=print) -> Dict[str, Any]:
     """The binding case once through ROS: ``swarm --robot-model unicycle --mode lockstep`` with 10
-    robots from the simulator's seeded start, against the offline loop and the double integrators
-    from the same start. Writes ``DIR/ros.npz`` and returns the figures (``results.json['ros']``)."""
+    robots from the simulator's seeded start (TorchScript, as offline), against the offline loop
+    and the double integrators from the same start. Writes ``DIR/ros.npz`` (logs in
+    ``DIR/ros_logs``) and returns the figures (``results.json['ros']``)."""
     import subprocess
     from knode_swarm_ros.core import load_trajectories
     from knode_swarm_ros.nodes.simulator_logic import initial_state
@@ -140,16 +141,21 @@ def ros_confirm(policy_path: str, out: str, steps: int, seed: int, bind_speed: f
     record = os.path.join(out, 'ros.npz')
     cmd = [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--policy', policy_path, '--robots', '10',
            '--steps', str(steps), '--seed', str(seed), '--mode', 'lockstep', '--record', record, '--no-figure',
-           '--quiet', '--robot-model', 'unicycle', '--max-linear-speed', repr(lim.max_linear_speed),
+           '--lockstep-timeout', '120', '--log-dir', os.path.join(out, 'ros_logs'),  # a loaded machine loses no robot
+           '--quiet', '--policy-runtime', 'torchscript', '--robot-model', 'unicycle',
+           '--max-linear-speed', repr(lim.max_linear_speed),
            '--max-angular-speed', '1.8', '--max-linear-accel', '1.0', '--max-angular-accel', '5.0']
     log('$ ' + ' '.join(cmd))
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise KnodeError(f'the ROS run failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}')
     ros = load_trajectories(record).states[:1]
+    with open(os.path.join(out, 'ros_logs', 'simulator.json')) as fh:
+        report = json.load(fh)
     offline, _ = unicycle_rollout(policy, z0, steps, lim, policy.d_cr, policy.k, policy.dt, 'point',
                                   policy.command_limit)
-    result = {'command': ' '.join(cmd[1:]), 'limits': lim.__dict__,
+    result = {'command': ' '.join(cmd[1:]), 'limits': lim.__dict__, 'lost': report.get('lost'),
+              'simulator_counters': report.get('counters'),
               'max_difference_to_offline': float(np.abs(ros - offline).max())}
     for name, states in (('ros_unicycle', ros), ('double_integrator', di)):
         final = states[0, -1]

@@ -65,6 +65,7 @@ class AgentUnicycle:
         self.turn = 0.0
         self.point_velocity = np.zeros(2)
         self.point = state == 'point'
+        self._answered = (-1, (0.0, 0.0))  # (state stamp, twist) of the last mapped command
         self.twist_frame = twist_frame
         if not self.enabled:
             return
@@ -104,8 +105,11 @@ class AgentUnicycle:
             return
         if command.stop:
             v, w = self.mapper.stop()
+        elif command.stamp_ns == self._answered[0]:  # a resend (lockstep): the same twist, the ramp not advanced
+            v, w = self._answered[1]
         else:
             v, w = self.mapper(command.value, self.yaw, self.point_velocity, self.turn)
+            self._answered = (command.stamp_ns, (v, w))
         self.publish_raw(stamp_msg, v, w)
 
     def publish_raw(self, stamp_msg, v: float, w: float) -> None:
