@@ -516,3 +516,27 @@ def test_agent_publishes_its_health_on_diagnostics(ros, flock_policy):
     assert ros.spin_until(healthy, each=publish, timeout=60)
     entry = reports[-1].status[0]
     assert entry.name == 'knode_swarm agent robot_2' and entry.hardware_id == 'robot_2' and entry.message == 'ok'
+
+
+def test_lockstep_unicycle_agent_answers_a_resend_with_the_same_twist(ros, flock_policy):
+    """A lockstep resend of a step's command repeats the twist it answered: the acceleration
+    ramp advances once per state, as in the offline study (else the swarm leaves it)."""
+    from geometry_msgs.msg import TwistStamped
+    from knode_swarm_ros.nodes.agent_logic import Command
+    from knode_swarm_ros.nodes.conversions import time_msg
+    agent = _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='lockstep', command_interface='unicycle',
+                   max_linear_accel=1.0, max_angular_accel=2.0)
+    io = ros.node('test_io')
+    got = []
+    io.create_subscription(TwistStamped, 'robot_0/cmd_vel', got.append, qos.COMMAND)
+    uni = agent.unicycle
+    uni.observe(True, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), (0.5, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros(4))
+    assert uni.mapper.last == (0.5, 0.0)                      # the ramp starts from the robot's motion
+    first = Command(1_000_000, 1, np.array([9.0, 9.0]))
+    for cmd in (first, first, Command(2_000_000, 2, np.array([9.0, 9.0]))):
+        uni.publish(time_msg(cmd.stamp_ns), cmd)
+    assert ros.spin_until(lambda: len(got) >= 3, timeout=30)
+    twists = [(m.twist.linear.x, m.twist.angular.z) for m in got]
+    step = 1.0 * 0.01, 2.0 * 0.01                             # the policy's dt: lockstep's control period
+    assert twists[0] == twists[1] == pytest.approx((0.5 + step[0], step[1]))
+    assert twists[2] == pytest.approx((0.5 + 2 * step[0], 2 * step[1])) and uni.mapper.periods == 2

@@ -66,6 +66,7 @@ class AgentUnicycle:
         self.point_velocity = np.zeros(2)
         self.point = state == 'point'
         self._answered = (-1, (0.0, 0.0))  # (state stamp, twist) of the last mapped command
+        self.lockstep = mode != 'realtime'
         self.twist_frame = twist_frame
         if not self.enabled:
             return
@@ -105,7 +106,7 @@ class AgentUnicycle:
             return
         if command.stop:
             v, w = self.mapper.stop()
-        elif command.stamp_ns == self._answered[0]:  # a resend (lockstep): the same twist, the ramp not advanced
+        elif self.lockstep and command.stamp_ns == self._answered[0]:  # a resend: the same twist, ramp not advanced
             v, w = self._answered[1]
         else:
             v, w = self.mapper(command.value, self.yaw, self.point_velocity, self.turn)
