@@ -3,7 +3,8 @@
 :class:`SwarmSim` holds the states ``[n, d]`` of robots ``0 .. n-1`` and the newest command of
 each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step` (docs/DESIGN.md,
 "Rollout semantics"), or, in ground-truth mode, with the Tanner / boids stepper of
-:mod:`knode_swarm_ros.core.groundtruth`, which ignores commands.
+:mod:`knode_swarm_ros.core.groundtruth`, which ignores commands; or, with a robot model
+(``robot_model: unicycle``, :mod:`.simulator_robot`), as differential-drive bases taking (v, omega).
 
 * lockstep: a step advances once every live robot has answered the current step (a command
   stamped with the current state's stamp). A robot still silent ``lockstep_timeout`` wall
