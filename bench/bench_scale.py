@@ -66,6 +66,8 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     ids = list(range(n))
     host = HostedAgents(ids, AgentConfig(0, ids, 'lockstep'), policy)
     lone = AgentLogic(AgentConfig(n // 2, ids, 'lockstep'), policy)
+    import gc
+    gc.freeze()  # as the nodes do once built (nodes/executor.py)
     filing, poll, lone_poll = [], [], []
     clock = time.thread_time  # CPU time of this thread: on a loaded machine wall time counts others' slices
     for s, frame in enumerate(frames):
