@@ -181,6 +181,7 @@ class HostedAgents:
                     self._held_since = wall
                     self._deadline = min(self._deadline, wall + self.hold_s)
                 self._held[rid] = item
+                self._most_left_out = max(self._most_left_out, len(logic.left_out))  # it may have given up on some
             elif item is not None:
                 out.append((rid, item))  # a re-sent command; a pending step may follow
                 again.append(rid)
@@ -190,7 +191,6 @@ class HostedAgents:
         if self._held and (len(self._held) == len(self.logics) or wall - self._held_since >= self.hold_s):
             held, self._held = self._held, {}
             out += self._run(held)
-            self._most_left_out = max(len(logic.left_out) for logic in self.logics.values())
         if self._full:  # the next timeout, exactly (in between, an earlier one only polls everyone once more)
             since = [self.logics[rid].waiting_since for rid in self._active]
             self._deadline = min([t + self.state_timeout for t in since if t is not None]
