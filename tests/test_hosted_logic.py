@@ -221,3 +221,38 @@ class _Retimed:
 
     def __call__(self, Y, mask):
         return self._policy(Y, mask)
+
+
+def test_hosted_commands_are_cleaned_like_a_lone_agents(policies):
+    # A policy that answers NaN for some matrices and far beyond the limit for others: each hosted
+    # robot publishes zero / the clipped command and counts it, as its lone agent does.
+    base = policies['flock2d']
+
+    class Wild(_Retimed):
+        def __call__(self, Y, mask):
+            u = np.array(self._policy(Y, mask))
+            u[Y[:, 0, 0] > 0, 0] = np.nan       # robots right of the origin: non-finite
+            u[Y[:, 0, 1] > 0, 1] = 1e6           # robots above it: far beyond the limit
+            return u
+
+    policy = Wild(base, base.tau)
+    n, hosted = 6, [0, 1, 2, 3, 4, 5]
+    ids = list(range(n))
+    frames = _frames('flock2d', n, 5, seed=8)
+    lone = {rid: AgentLogic(AgentConfig(rid, ids, 'lockstep'), policy) for rid in hosted}
+    host = HostedAgents(hosted, AgentConfig(0, ids, 'lockstep'), policy)
+    for s, frame in enumerate(frames):
+        ns = stamp_ns(s, policy.dt)
+        for robot in range(n):
+            for logic in lone.values():
+                logic.receive(robot, ns, frame[robot])
+            host.receive(robot, ns, frame[robot])
+        want = {rid: logic.lockstep_poll(0.0) for rid, logic in lone.items()}
+        got = dict(host.lockstep_poll(0.0))
+        for rid in hosted:
+            assert np.array_equal(got[rid].value, want[rid].value)
+    for rid in hosted:
+        assert dict(host.logics[rid].counters) == dict(lone[rid].counters)
+        assert lone[rid].drain_events() == host.logics[rid].drain_events()
+    c = [lone[rid].counters for rid in hosted]
+    assert sum(x['non_finite_command'] for x in c) > 0 and sum(x['clipped'] for x in c) > 0

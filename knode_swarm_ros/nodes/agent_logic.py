@@ -62,7 +62,8 @@ from .control_period import RATE_CHECKS, check_control_period
 from .hearing import DROP_REASONS, Counters, Hearing, Rows
 from .policy_call import evaluate_rows
 
-__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS', 'build_matrices']
+__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS', 'build_matrices',
+           'clean_commands']
 
 
 class PolicyLike(Protocol):
@@ -175,6 +176,17 @@ class _Lockstep:
     answered: Optional[int] = None
     resend: bool = False
     gone: set = field(default_factory=set)
+
+
+def clean_commands(U: np.ndarray, limit: Optional[float]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The commands ``[B, m]`` an agent publishes for the policy's outputs ``U [B, m]``: a row
+    with a non-finite entry becomes zero, then every entry is clipped to ``[-limit, limit]``;
+    also which rows were non-finite ``[B]`` and which the clip changed ``[B]``."""
+    U = np.asarray(U, dtype=np.float64)
+    non_finite = ~np.isfinite(U).all(axis=-1)
+    value = np.where(non_finite[:, None], 0.0, U) if non_finite.any() else U
+    clipped = saturate(value, limit)
+    return clipped, non_finite, (clipped != value).any(axis=-1)
 
 
 class AgentLogic:
@@ -445,18 +457,19 @@ class AgentLogic:
     def finish(self, request: Request, u: np.ndarray) -> Command:
         """The command of ``request`` from the policy's output ``u [m]``: a non-finite output
         becomes zero, then the per-axis clip; counted and remembered as the last command."""
-        step, stamp, mask = request.step, request.stamp_ns, request.mask
-        u = np.asarray(u, dtype=np.float64)
-        if not np.isfinite(u).all():  # (array methods: a hosting process finishes 100s of commands a step)
+        value, non_finite, clipped = clean_commands(np.asarray(u, dtype=np.float64)[None], self.limit)
+        return self.commit(request, value[0], bool(non_finite[0]), bool(clipped[0]), u)
+
+    def commit(self, request: Request, value: np.ndarray, non_finite: bool, clipped: bool, raw) -> Command:
+        """:meth:`finish` after :func:`clean_commands` (a hosting process cleans its batch at once)."""
+        step = request.step
+        if non_finite:
             self.counters['non_finite_command'] += 1
-            self.events.append(f'step {step}: the policy returned {u.tolist()}: publishing zero')
-            u = np.zeros(self.spec.command_dim)
-        clipped = saturate(u, self.limit)
-        if (clipped != u).any():
+            self.events.append(f'step {step}: the policy returned {np.asarray(raw).tolist()}: publishing zero')
+        if clipped:
             self.counters['clipped'] += 1
-        u = clipped
         self.counters['commands'] += 1
-        cmd = Command(int(stamp), int(step), u, neighbours=int(mask.sum()) - 1)
+        cmd = Command(int(request.stamp_ns), int(step), value, neighbours=int(request.mask.sum()) - 1)
         self.last_command = cmd
         return cmd
 

@@ -26,7 +26,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .agent_logic import AgentConfig, AgentLogic, Command, PolicyLike, Request
+from .agent_logic import AgentConfig, AgentLogic, Command, PolicyLike, Request, clean_commands
 from .common import ConfigError
 from .policy_call import evaluate_rows
 
@@ -210,8 +210,11 @@ class HostedAgents:
             elif item is not None:
                 out.append((rid, item))
         if requests:
-            for (rid, request), u in zip(requests, self.evaluate([r for _, r in requests], [rid for rid, _ in requests])):
-                out.append((rid, self.logics[rid].finish(request, u)))
+            U = self.evaluate([r for _, r in requests], [rid for rid, _ in requests])
+            values, non_finite, clipped = clean_commands(U, self._first.limit)  # the hosted robots share the limit
+            for n, (rid, request) in enumerate(requests):
+                out.append((rid, self.logics[rid].commit(request, values[n], bool(non_finite[n]), bool(clipped[n]),
+                                                         U[n])))
             out.sort(key=lambda item: item[0])
         return out
 
