@@ -33,7 +33,7 @@ from .agent import load_agent_policy
 from .agent_logic import DROP_REASONS
 from .agent_params import declare_agent_parameters
 from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
-from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
+from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr
 from .executor import run_node
 from .hosted_logic import HostedAgents, format_ids, parse_ids
 from .params import check_overrides, declare
@@ -160,7 +160,7 @@ class AgentsNode(Node):
 
     def _publish(self, commands) -> None:
         for rid, cmd in commands:
-            self.cmd_pubs[rid].publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self.cmd_pubs[rid].publish(command_to_cdr(cmd.stamp_ns, cmd.value, self.spec))  # bytes: no msg objects
         if commands:  # notes come with commands (or a timer): not worth a look at every message
             self._log_events()
 
