@@ -161,3 +161,13 @@ def test_serialized_commands_equal_rclpys_serialization():
             assert np.array_equal(msg_to_command(back, scenario)[1], u)
     with pytest.raises(ValueError, match='before time 0'):
         command_to_cdr(-1, [0.0, 0.0], 'flock2d')
+
+
+def test_serialized_strings_decode_as_rclpys():
+    from rclpy import serialization
+    from std_msgs.msg import String
+    from knode_swarm_ros.nodes.conversions import string_to_cdr
+    for text in ('', 'a', 'abc', 'abcd', '{"id":3,"ready":true}', 'ünïcödé ✓' * 7):
+        ours = string_to_cdr(text)
+        assert len(ours) == len(serialization.serialize_message(String(data=text)))
+        assert serialization.deserialize_message(ours, String).data == text

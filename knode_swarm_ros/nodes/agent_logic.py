@@ -319,11 +319,13 @@ class AgentLogic:
     # --- readiness -----------------------------------------------------------------
     def heard(self) -> List[int]:
         """Robots heard from at least once (ids, ascending)."""
-        return [rid for rid in self.ids if rid in self.newest_ns]
+        newest = self.hearing.newest_ns
+        return [rid for rid in self.ids if rid in newest]
 
     def missing(self) -> List[int]:
         """Robots never heard from."""
-        return [rid for rid in self.ids if rid not in self.newest_ns]
+        newest = self.hearing.newest_ns
+        return [rid for rid in self.ids if rid not in newest]
 
     @property
     def ready(self) -> bool:

@@ -33,7 +33,7 @@ from .agent import load_agent_policy
 from .agent_logic import DROP_REASONS
 from .agent_params import declare_agent_parameters
 from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
-from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr
+from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr, string_to_cdr
 from .executor import run_node
 from .hosted_logic import HostedAgents, format_ids, parse_ids
 from .params import check_overrides, declare
@@ -183,7 +183,7 @@ class AgentsNode(Node):
 
     def _publish_status(self) -> None:
         for rid, logic in self.hosted.logics.items():
-            self.status_pubs[rid].publish(String(data=status_json(**logic.status())))
+            self.status_pubs[rid].publish(string_to_cdr(status_json(**logic.status())))  # bytes: no msg objects
 
     def write_report(self) -> None:
         """Write every hosted robot's counters to the ``report`` file (if set)."""

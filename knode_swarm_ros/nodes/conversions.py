@@ -50,7 +50,8 @@ from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
            'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'odom_from_cdr', 'odom_fields_from_cdr',
-           'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'command_to_cdr', 'msg_to_command']
+           'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'command_to_cdr', 'string_to_cdr',
+           'msg_to_command']
 
 ScenarioLike = Union[str, Scenario]
 
@@ -235,6 +236,14 @@ def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
     _put_string(buf, WORLD_FRAME)
     _pad(buf, 8)
     buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
+    return bytes(buf)
+
+
+def string_to_cdr(text: str) -> bytes:
+    """The serialized form of ``std_msgs/String(data=text)`` (a hosting process publishes a
+    status per robot)."""
+    buf = bytearray(_CDR_LE)
+    _put_string(buf, text)
     return bytes(buf)
 
 
