@@ -8,11 +8,13 @@
 
 Figures, each against a baseline of the same run:
 
-* tick (CPU time of the thread, so that other jobs' load does not count): inside a hosting process at N robots (all hosted), the cost per robot and step of
-  building Y_i plus its share of the one batched policy call (``HostedAgents.lockstep_poll``
-  after the step's last state), and of filing the step's N states into every hosted robot's
-  buffer; baselines: a lone agent's ``lockstep_poll`` at the same N (parity batch of N), and the
-  bare policy forward of a batch of N per robot;
+* tick (CPU time of the thread, so that other jobs' load does not count): inside a hosting
+  process at N robots (all hosted), the cost per robot and step of building Y_i plus its share of
+  the one batched policy call (``HostedAgents.lockstep_poll`` after every state, as the node
+  polls), and of filing the step's N states once for the process; baselines: a lone agent's
+  polls at the same N (parity batch of N) and in a swarm of 10, and the bare policy forward of a
+  batch of N per robot; objects built before the loop are frozen out of the garbage collector's
+  sight, as the nodes do;
 * lockstep: per robot count and layout (``lone``: ``--agents-per-process 1``; ``hosted``: the
   launcher's default split), steps/s after startup, startup seconds, state-to-command latency
   p50/p99 and the PSS of all processes while running, hosted / lone as ratios; the lone layout
@@ -27,7 +29,11 @@ Figures, each against a baseline of the same run:
   :func:`core.rollout` from the recorded initial state (max difference; 0 = bit for bit) and vs
   the ground truth (Tanner) from the same state: avd/amd at the end and over the last 10 %.
 
-Uses the shipped flock2d policy unless ``--policy``. PSS is read from /proc/<pid>/smaps_rollup.
+Uses the shipped flock2d policy unless ``--policy``, on TorchScript unless ``--policy-runtime``
+(the offline rollout is torch: only TorchScript agents reproduce it bit for bit). PSS is read
+from /proc/<pid>/smaps_rollup. The full measurement (about 60 to 90 minutes on a quiet 2-core
+machine): ``python bench/bench_scale.py --robots 10,20,50,100,200 --steps 2000 --seconds 60
+--lone-max 50``.
 """
 from __future__ import annotations
 
@@ -312,7 +318,7 @@ def main(argv=None) -> int:
             for layout in ('lone', 'hosted'):
                 k = 1 if layout == 'lone' else resolve_agents_per_process(a.agents_per_process, n)
                 if layout == 'lone' and n > a.lone_max:
-                    print(f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.33 * n:.0f} GB)')
+                    print(f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.18 * n:.0f} GB)')  # 3.6 GB for 20
                     continue
                 if layout == 'hosted' and k == 1:
                     k = max(2, -(-n // 2))  # the default is one process per robot here: host anyway
