@@ -54,11 +54,11 @@ from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 import numpy as np
 
-from ..core.network import neighbour_matrix_rows
-from ..core.saturation import effective_limit, saturate, stop_command
+from ..core.saturation import effective_limit, stop_command
 from ..core.scenarios import get_scenario
 from .common import MODES, ConfigError
 from .control_period import RATE_CHECKS, check_control_period
+from .agent_batch import Request, build_matrices, clean_commands
 from .hearing import DROP_REASONS, Counters, Hearing, Rows
 from .policy_call import evaluate_rows
 
@@ -140,35 +140,6 @@ class Command:
 
 
 @dataclass
-class Request:
-    """A command waiting for its policy output: robot ``robot``'s own state ``own [d]`` of own
-    step ``step`` and the delayed states ``rows`` it hears, to be stamped ``stamp_ns``;
-    ``Y [k, d]`` and ``mask [k]`` once built (:func:`build_matrices`; see :meth:`AgentLogic.finish`)."""
-
-    step: int
-    stamp_ns: int
-    robot: int
-    own: np.ndarray
-    rows: Rows
-    Y: Optional[np.ndarray] = None
-    mask: Optional[np.ndarray] = None
-
-
-def build_matrices(requests: Sequence[Request], position_dim: int, d_cr: float, k: int) -> None:
-    """Fill ``Y``, ``mask`` of every request with :func:`knode_swarm_ros.core.neighbour_matrix_rows`,
-    one call per snapshot of rows (the robots of a process that hear the same rows share it)."""
-    groups: Dict[int, List[Request]] = {}
-    for r in requests:
-        groups.setdefault(id(r.rows), []).append(r)
-    for group in groups.values():
-        rows = group[0].rows
-        Y, mask = neighbour_matrix_rows([rows.index[r.robot] for r in group], np.stack([r.own for r in group]),
-                                        rows.Z, position_dim, d_cr, k)
-        for r, y, m in zip(group, Y, mask):
-            r.Y, r.mask = y, m
-
-
-@dataclass
 class _Lockstep:
     first_step: Optional[int] = None
     pending: Optional[int] = None
@@ -176,17 +147,6 @@ class _Lockstep:
     answered: Optional[int] = None
     resend: bool = False
     gone: set = field(default_factory=set)
-
-
-def clean_commands(U: np.ndarray, limit: Optional[float]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The commands ``[B, m]`` an agent publishes for the policy's outputs ``U [B, m]``: a row
-    with a non-finite entry becomes zero, then every entry is clipped to ``[-limit, limit]``;
-    also which rows were non-finite ``[B]`` and which the clip changed ``[B]``."""
-    U = np.asarray(U, dtype=np.float64)
-    non_finite = ~np.isfinite(U).all(axis=-1)
-    value = np.where(non_finite[:, None], 0.0, U) if non_finite.any() else U
-    clipped = saturate(value, limit)
-    return clipped, non_finite, (clipped != value).any(axis=-1)
 
 
 class AgentLogic:

@@ -1,14 +1,22 @@
 """Several robots' agents in one process, without ROS: what the ``agents`` node wires to topics.
 
 Each hosted robot runs its own :class:`AgentLogic`, the very class a lone ``agent`` runs: its
-own delay buffer, drops and counters, lockstep bookkeeping, neighbour matrix Y_i and command.
-It hears exactly what its robot would hear (every state the process receives goes to every
-hosted robot's logic, which files it by its own rules); nothing of one robot's state of mind
-reaches another. Shared is plumbing only: the process decodes each message once, holds one
-policy module, and evaluates the policy once per tick for every hosted robot whose command is
-due (:func:`.policy_call.evaluate_rows`), with each robot's matrix at its swarm index in a
+own lockstep bookkeeping (pending step, peers given up on, re-sends), counters of commands,
+neighbour matrix Y_i and command. What it hears is the process's :class:`.hearing.Hearing`:
+the hosted robots subscribe to the same topics and check each state by the same rules on the
+same clock, so each one's buffer would be the same; the process files each state once (one
+delay buffer, receipt counters, newest stamps) and every hosted robot reads it as its own.
+Nothing of one robot's state of mind reaches another. A state concerns only its owner (if hosted
+here) and the robots that gave up on its sender: only they react to it, and a lockstep poll
+looks only at them, or, when a step's states may be complete or a timeout may have passed, at
+every robot with a pending step (polling any other would return nothing).
+
+Shared is plumbing only: one policy module, the Y_i of all due robots built by one core call per
+snapshot of rows (:func:`.agent_logic.build_matrices`), one policy call per tick
+(:func:`.policy_call.evaluate_rows`), with each robot's matrix at its swarm index in a
 rollout-shaped batch when the logic asks for parity rows, so that any split of the swarm over
-processes reproduces :func:`knode_swarm_ros.core.rollout` bit for bit.
+processes reproduces :func:`knode_swarm_ros.core.rollout` bit for bit, and the commands cleaned
+as one batch (:func:`.agent_logic.clean_commands`).
 
 Batching in lockstep: with a delay (tau >= 1) a robot's command is due as soon as its own state
 arrives, so the hosted robots fall due one after the other within a step. A due request is held
