@@ -8,11 +8,13 @@
 
 Figures, each against a baseline of the same run:
 
-* tick (CPU time of the thread, so that other jobs' load does not count): inside a hosting process at N robots (all hosted), the cost per robot and step of
-  building Y_i plus its share of the one batched policy call (``HostedAgents.lockstep_poll``
-  after the step's last state), and of filing the step's N states into every hosted robot's
-  buffer; baselines: a lone agent's ``lockstep_poll`` at the same N (parity batch of N), and the
-  bare policy forward of a batch of N per robot;
+* tick (CPU time of the thread, so that other jobs' load does not count): inside a hosting
+  process at N robots (all hosted), the cost per robot and step of building Y_i plus its share of
+  the one batched policy call (``HostedAgents.lockstep_poll`` after every state, as the node
+  polls), and of filing the step's N states once for the process; baselines: a lone agent's
+  polls at the same N (parity batch of N) and in a swarm of 10, and the bare policy forward of a
+  batch of N per robot; objects built before the loop are frozen out of the garbage collector's
+  sight, as the nodes do;
 * lockstep: per robot count and layout (``lone``: ``--agents-per-process 1``; ``hosted``: the
   launcher's default split), steps/s after startup, startup seconds, state-to-command latency
   p50/p99 and the PSS of all processes while running, hosted / lone as ratios; the lone layout
@@ -27,7 +29,11 @@ Figures, each against a baseline of the same run:
   :func:`core.rollout` from the recorded initial state (max difference; 0 = bit for bit) and vs
   the ground truth (Tanner) from the same state: avd/amd at the end and over the last 10 %.
 
-Uses the shipped flock2d policy unless ``--policy``. PSS is read from /proc/<pid>/smaps_rollup.
+Uses the shipped flock2d policy unless ``--policy``, on TorchScript unless ``--policy-runtime``
+(the offline rollout is torch: only TorchScript agents reproduce it bit for bit). PSS is read
+from /proc/<pid>/smaps_rollup. The full measurement (about 60 to 90 minutes on a quiet 2-core
+machine): ``python bench/bench_scale.py --robots 10,20,50,100,200 --steps 2000 --seconds 60
+--lone-max 50``.
 """
 from __future__ import annotations
 
@@ -53,6 +59,8 @@ from bench_ros import machine  # noqa: E402
 
 # --- tick ------------------------------------------------------------------------------------
 def bench_tick(policy_path: str, n: int, steps: int) -> dict:
+    """Per robot and step, as the nodes call the logic: after every state a poll."""
+    import gc
     import torch
     torch.set_num_threads(1)
     from knode_swarm_ros.core import load_policy
@@ -66,26 +74,30 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     ids = list(range(n))
     host = HostedAgents(ids, AgentConfig(0, ids, 'lockstep'), policy)
     lone = AgentLogic(AgentConfig(n // 2, ids, 'lockstep'), policy)
-    filing, poll, lone_poll = [], [], []
+    small = min(n, 10)  # a lone agent in a swarm of 10 (the issue's reference tick)
+    lone10 = AgentLogic(AgentConfig(small // 2, list(range(small)), 'lockstep'), policy)
+    gc.freeze()  # as the nodes do once built (nodes/executor.py)
+    filing, poll, lone_poll, lone_filing, lone10_poll = [], [], [], [], []
     clock = time.thread_time  # CPU time of this thread: on a loaded machine wall time counts others' slices
     for s, frame in enumerate(frames):
         ns = stamp_ns(s, policy.dt)
-        t0 = clock()
-        for r in range(n - 1):
-            host.receive(r, ns, frame[r])
-        host.receive(n - 1, ns, frame[n - 1])
-        t1 = clock()
-        out = host.lockstep_poll(0.0)
-        t2 = clock()
-        assert len(out) == n
-        for r in range(n):
-            lone.receive(r, ns, frame[r])
-        t3 = clock()
-        assert lone.lockstep_poll(0.0) is not None
-        t4 = clock()
-        filing.append((t1 - t0) / n)
-        poll.append((t2 - t1) / n)
-        lone_poll.append(t4 - t3)
+        got = 0
+        for logic, file_acc, poll_acc, robots in ((host, filing, poll, n), (lone, lone_filing, lone_poll, n),
+                                                  (lone10, None, lone10_poll, small)):
+            t_file = t_poll = 0.0
+            for r in range(robots):
+                t0 = clock()
+                logic.receive(r, ns, frame[r])
+                t1 = clock()
+                out = logic.lockstep_poll(0.0)
+                t_poll += clock() - t1
+                t_file += t1 - t0
+                if logic is host:
+                    got += len(out)
+            if file_acc is not None:
+                file_acc.append(t_file / robots if logic is host else t_file)
+            poll_acc.append(t_poll / robots if logic is host else t_poll)
+        assert got == n
     Y = np.zeros((n, policy.k, frames[0].shape[1]))
     Y[:, 1:, 0] = np.arange(1, policy.k)
     mask = np.ones((n, policy.k), dtype=bool)
@@ -97,8 +109,8 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     skip = min(5, len(frames) // 4)
     q = lambda xs: (float(np.percentile(np.array(xs[skip:]) * 1e6, 50)), float(np.percentile(np.array(xs[skip:]) * 1e6, 99)))
     return {'robots': n, 'steps': len(frames), 'hosted_y_and_policy_share_us': q(poll),
-            'hosted_filing_per_robot_us': q(filing), 'lone_poll_us': q(lone_poll), 'bare_policy_share_us': q(bare),
-            'policy_calls': host.calls}
+            'hosted_filing_per_robot_us': q(filing), 'lone_poll_us': q(lone_poll), 'lone_filing_us': q(lone_filing),
+            'lone10_poll_us': q(lone10_poll), 'bare_policy_share_us': q(bare), 'policy_calls': host.calls}
 
 
 # --- runs ------------------------------------------------------------------------------------
@@ -113,6 +125,7 @@ def pss_kb(pid: int) -> int:
 
 
 DOMAIN_ID = None
+RUNTIME = 'torchscript'
 
 
 def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
@@ -121,6 +134,7 @@ def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
            '--quiet', *map(str, args)]
     if DOMAIN_ID is not None:  # concurrent benchmarks on one machine must not share a domain
         cmd += ['--domain-id', str(DOMAIN_ID)]
+    cmd += ['--policy-runtime', RUNTIME]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     t0 = time.monotonic()
     out_path = log_dir.with_suffix('.out')
@@ -259,11 +273,14 @@ def main(argv=None) -> int:
     p.add_argument('--state-timeout', type=float, default=60.0,
                    help="agents' state_timeout in lockstep runs (default 60 s: see _lockstep_wait)")
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of every run (default: the launcher draws one)')
+    p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='torchscript',
+                   help="the agents' runtime (default torchscript: core.rollout runs torch, so a lockstep recording "
+                   'equals it bit for bit only on TorchScript; the ONNX twin agrees to about 1e-6)')
     p.add_argument('--policy')
     p.add_argument('--out', help='results JSON (default: in the temporary folder)')
     a = p.parse_args(argv)
-    global DOMAIN_ID
-    DOMAIN_ID = a.domain_id
+    global DOMAIN_ID, RUNTIME
+    DOMAIN_ID, RUNTIME = a.domain_id, a.policy_runtime
     only = set(a.only or ('tick', 'lockstep', 'realtime', 'quality'))
     counts = [int(x) for x in a.robots.split(',') if x]
     from knode_swarm_ros.core.policy_io import shipped_policy_path
@@ -282,10 +299,15 @@ def main(argv=None) -> int:
         for key, label in (('hosted_y_and_policy_share_us', 'hosted: Y_i + share of the batched call'),
                            ('hosted_filing_per_robot_us', 'hosted: filing the step\'s states, per robot'),
                            ('lone_poll_us', f'lone agent: Y_i + its own call (batch {t["robots"]})'),
+                           ('lone_filing_us', f'lone agent: filing the step\'s {t["robots"]} states'),
+                           ('lone10_poll_us', 'lone agent of 10 robots: Y_i + its own call'),
                            ('bare_policy_share_us', 'bare policy forward, share of a batch')):
             print(f'{label:48s} {t[key][0]:9.1f} {t[key][1]:9.1f}')
-        print(f'ratio hosted / lone (p50): {t["hosted_y_and_policy_share_us"][0] / t["lone_poll_us"][0]:.3f}',
-              flush=True)
+        h = t['hosted_y_and_policy_share_us'][0]
+        print(f'ratio hosted / lone at {t["robots"]} robots (p50): {h / t["lone_poll_us"][0]:.3f}; '
+              f'hosted / lone at 10 robots: {h / t["lone10_poll_us"][0]:.3f}; '
+              f'hosted per robot incl. filing: {h + t["hosted_filing_per_robot_us"][0]:.1f} us (goal <= 50 us for '
+              'Y_i + share of the call)', flush=True)
     if 'lockstep' in only:
         print(f'\n## lockstep, {a.steps} steps (steps/s after startup; PSS of all processes while running)')
         print(f'{"robots":>6} {"layout":>7} {"procs":>5} {"steps/s":>8} {"startup s":>9} {"p50 ms":>8} {"p99 ms":>8} '
@@ -296,7 +318,7 @@ def main(argv=None) -> int:
             for layout in ('lone', 'hosted'):
                 k = 1 if layout == 'lone' else resolve_agents_per_process(a.agents_per_process, n)
                 if layout == 'lone' and n > a.lone_max:
-                    print(f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.33 * n:.0f} GB)')
+                    print(f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.18 * n:.0f} GB)')  # 3.6 GB for 20
                     continue
                 if layout == 'hosted' and k == 1:
                     k = max(2, -(-n // 2))  # the default is one process per robot here: host anyway

@@ -158,3 +158,101 @@ def test_the_launcher_splits_robots_over_hosting_processes():
     with pytest.raises(ConfigError, match='--netns: no network namespace nosuchns_i12'):
         hosting.check_netns('nosuchns_i12')
     hosting.check_netns(None)
+
+
+@pytest.mark.parametrize('tau', [0, 2])
+def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies, tau):
+    # Lost states make robots give up on a peer (state_timeout, on the wall clock of the polls),
+    # hear it again, and lose their own state: the process files every state once and polls
+    # only the robots a message concerns, and each hosted robot must still do what its lone
+    # agent does (same commands, same counters, same notes).
+    from dataclasses import replace as _replace
+    base = policies['flock2d']
+    policy = _Retimed(base, tau)
+    n, hosted = 8, [0, 3, 4, 7]
+    ids = list(range(n))
+    config = AgentConfig(0, ids, 'lockstep', state_timeout=0.5)
+    frames = _frames('flock2d', n, 30, seed=4)
+    lone = {rid: AgentLogic(_replace(config, robot_id=rid), policy) for rid in hosted}
+    host = HostedAgents(hosted, config, policy)
+    lost = {(5, 10), (5, 11), (3, 15), (2, 20), (0, 20)}  # a peer twice, a hosted robot's own state, two at once
+    got_lone, got_host = {r: [] for r in hosted}, {r: [] for r in hosted}
+    events_lone, events_host = [], []
+    rng = random.Random(3)
+
+    def collect(wall):
+        for rid, logic in lone.items():
+            cmd = logic.lockstep_poll(wall)
+            if cmd is not None:
+                got_lone[rid].append((cmd.step, cmd.stamp_ns, cmd.neighbours, cmd.value))
+            events_lone.extend(f'robot {rid}: {text}' for text in logic.drain_events())
+        for rid, cmd in host.lockstep_poll(wall):
+            got_host[rid].append((cmd.step, cmd.stamp_ns, cmd.neighbours, cmd.value))
+        events_host.extend(host.drain_events())
+
+    for s, frame in enumerate(frames):
+        ns, wall = stamp_ns(s, policy.dt), float(s)
+        order = [r for r in range(n) if (r, s) not in lost]
+        rng.shuffle(order)
+        for robot in order:
+            for logic in lone.values():
+                logic.receive(robot, ns, frame[robot], None, wall)
+            host.receive(robot, ns, frame[robot], None, wall)
+            collect(wall)
+        collect(wall + 0.3)   # a timer before the timeout: nothing new
+        collect(wall + 0.6)   # after it: the robots give up on the missing peers
+    for rid in hosted:
+        assert len(got_host[rid]) == len(got_lone[rid]) >= len(frames) - 2
+        assert [c[:3] for c in got_host[rid]] == [c[:3] for c in got_lone[rid]]
+        assert np.array_equal(np.stack([c[3] for c in got_host[rid]]), np.stack([c[3] for c in got_lone[rid]]))
+        assert dict(host.logics[rid].counters) == dict(lone[rid].counters)
+        assert host.logics[rid].status() == lone[rid].status()
+    assert lone[0].counters['gave_up'] >= 2 and any('heard again' in e for e in events_lone)
+    assert sorted(events_host) == sorted(events_lone)
+
+
+class _Retimed:
+    """A policy with another delay tau (the same network): the logic reads tau from the policy."""
+
+    def __init__(self, policy, tau):
+        self._policy, self.tau = policy, tau
+        for name in ('k', 'd_cr', 'dt', 'scenario', 'command_limit'):
+            setattr(self, name, getattr(policy, name))
+
+    def __call__(self, Y, mask):
+        return self._policy(Y, mask)
+
+
+def test_hosted_commands_are_cleaned_like_a_lone_agents(policies):
+    # A policy that answers NaN for some matrices and far beyond the limit for others: each hosted
+    # robot publishes zero / the clipped command and counts it, as its lone agent does.
+    base = policies['flock2d']
+
+    class Wild(_Retimed):
+        def __call__(self, Y, mask):
+            u = np.array(self._policy(Y, mask))
+            u[Y[:, 0, 0] > 0, 0] = np.nan       # robots right of the origin: non-finite
+            u[Y[:, 0, 1] > 0, 1] = 1e6           # robots above it: far beyond the limit
+            return u
+
+    policy = Wild(base, base.tau)
+    n, hosted = 6, [0, 1, 2, 3, 4, 5]
+    ids = list(range(n))
+    frames = _frames('flock2d', n, 5, seed=8)
+    lone = {rid: AgentLogic(AgentConfig(rid, ids, 'lockstep'), policy) for rid in hosted}
+    host = HostedAgents(hosted, AgentConfig(0, ids, 'lockstep'), policy)
+    for s, frame in enumerate(frames):
+        ns = stamp_ns(s, policy.dt)
+        for robot in range(n):
+            for logic in lone.values():
+                logic.receive(robot, ns, frame[robot])
+            host.receive(robot, ns, frame[robot])
+        want = {rid: logic.lockstep_poll(0.0) for rid, logic in lone.items()}
+        got = dict(host.lockstep_poll(0.0))
+        for rid in hosted:
+            assert np.array_equal(got[rid].value, want[rid].value)
+    for rid in hosted:
+        assert dict(host.logics[rid].counters) == dict(lone[rid].counters)
+        assert lone[rid].drain_events() == host.logics[rid].drain_events()
+    c = [lone[rid].counters for rid in hosted]
+    assert sum(x['non_finite_command'] for x in c) > 0 and sum(x['clipped'] for x in c) > 0

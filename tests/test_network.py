@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from knode_swarm_ros.core import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
+from knode_swarm_ros.core import neighbour_matrices, neighbour_matrix, neighbour_matrix_rows, neighbour_matrix_single
 
 
 def flock(*rows):
@@ -128,6 +128,45 @@ def test_builders_agree_with_fewer_robots_than_rows_and_k_one():
     Y1, m1 = neighbour_matrix_single(1, states[0, 1], states[0], 2, 50.0, 1)
     np.testing.assert_array_equal(Y1, states[0, 1:2])
     np.testing.assert_array_equal(m1, [True])
+
+
+def _reference_matrix(i, z_now_i, z_delayed, p, d_cr, k):
+    """Y_i by the definition, one robot, plain Python: neighbours within d_cr (inclusive) of robot
+    i's delayed position, sorted by (distance, id), k - 1 of them, zero rows masked."""
+    d = z_delayed.shape[1]
+    others = [(float(np.sqrt(np.sum((z_delayed[j, :p] - z_delayed[i, :p]) ** 2))), j)
+              for j in range(len(z_delayed)) if j != i]
+    chosen = sorted((dist, j) for dist, j in others if dist <= d_cr)[:k - 1]
+    Y, mask = np.zeros((k, d)), np.zeros(k, dtype=bool)
+    Y[0], mask[0] = z_now_i, True
+    for row, (_, j) in enumerate(chosen, start=1):
+        Y[row], mask[row] = z_delayed[j], True
+    return Y, mask
+
+
+@pytest.mark.parametrize('seed', range(6))
+def test_matrices_of_hosted_rows_equal_the_per_robot_definition(seed):
+    # What a hosting process builds for its robots at once (rows in any order, repeated, any
+    # subset of the robots heard) against the definition one robot at a time: positions on an
+    # integer grid make many distances equal (ties, and neighbours exactly at d_cr), a small
+    # radius leaves robots without neighbours, and k runs from 1 to more than the robots.
+    rng = np.random.default_rng(seed)
+    n, p = int(rng.integers(1, 15)), int(rng.choice([2, 3]))
+    d = 2 * p
+    z_delayed = np.concatenate([rng.integers(-3, 4, size=(n, p)), rng.normal(size=(n, p))], axis=1).astype(float)
+    z_now = z_delayed + rng.normal(size=z_delayed.shape)
+    for k in (1, 2, 4, 6, n + 2):
+        for d_cr in (0.5, 1.0, 2.0, 50.0):
+            rows = rng.integers(0, n, size=int(rng.integers(1, 2 * n + 1)))
+            Y, mask = neighbour_matrix_rows(rows, z_now[rows], z_delayed, p, d_cr, k)
+            assert Y.shape == (len(rows), k, d) and mask.shape == (len(rows), k)
+            full_Y, full_mask = neighbour_matrix(z_now, z_delayed, p, d_cr, k)
+            for q, i in enumerate(rows):
+                ref_Y, ref_mask = _reference_matrix(i, z_now[i], z_delayed, p, d_cr, k)
+                np.testing.assert_array_equal(Y[q], ref_Y)
+                np.testing.assert_array_equal(mask[q], ref_mask)
+                np.testing.assert_array_equal(Y[q], full_Y[i])   # = the batched builder of training
+                np.testing.assert_array_equal(mask[q], full_mask[i])
 
 
 def test_batched_over_time_and_trajectories_equals_per_snapshot():

@@ -142,3 +142,32 @@ def test_markers_show_robots_headings_and_links_within_d_cr():
     assert len(by_ns['headings']) == 3
     assert len(by_ns['links'][0].points) == 2  # only robots 0 and 1 are within 1.5
     assert swarm_markers(states, get_scenario('flock2d'), 0.0, 1).markers[-1].points == []
+
+
+def test_serialized_commands_equal_rclpys_serialization():
+    # the hosting agents node publishes commands as bytes built by command_to_cdr; rclpy leaves
+    # alignment padding uninitialised: lengths and decoded messages
+    from rclpy import serialization
+    from knode_swarm_ros.nodes.conversions import command_to_cdr
+    rng = np.random.default_rng(3)
+    for scenario, m in (('flock2d', 2), ('boids3d', 3)):
+        for ns in (0, 1, 999_999_999, 1_000_000_000, 12_345_678_901_234):
+            u = rng.normal(scale=5.0, size=m)
+            msg = command_to_msg(ns, u, scenario)
+            ours = command_to_cdr(ns, u, scenario)
+            assert len(ours) == len(serialization.serialize_message(msg))
+            back = serialization.deserialize_message(ours, command_msg_type(scenario))
+            assert back == msg and msg_to_command(back, scenario)[0] == ns
+            assert np.array_equal(msg_to_command(back, scenario)[1], u)
+    with pytest.raises(ValueError, match='before time 0'):
+        command_to_cdr(-1, [0.0, 0.0], 'flock2d')
+
+
+def test_serialized_strings_decode_as_rclpys():
+    from rclpy import serialization
+    from std_msgs.msg import String
+    from knode_swarm_ros.nodes.conversions import string_to_cdr
+    for text in ('', 'a', 'abc', 'abcd', '{"id":3,"ready":true}', 'ünïcödé ✓' * 7):
+        ours = string_to_cdr(text)
+        assert len(ours) == len(serialization.serialize_message(String(data=text)))
+        assert serialization.deserialize_message(ours, String).data == text

@@ -90,10 +90,26 @@ def test_the_agents_executable_refuses_bad_ids(tmp_path, ros_domain_id, ids, wor
     assert proc.returncode == 2 and words in out, out
 
 
+@pytest.mark.parametrize('params, words', [
+    (['mode:=realtime', 'link_loss:=0.1'], "parameters 'link_*' (the link model) are not offered by the agents node"),
+    (['managed:=true'], "parameter 'managed' = true: the agents node is not a lifecycle node"),
+    (['mode:=realtime', 'command_interface:=unicycle'], "'command_interface' = 'unicycle' is not offered"),
+    (['state_timout:=3'], "unknown parameter 'state_timout': did you mean 'state_timeout'?"),
+    (['policy_runtime:=tensorflow'], "parameter 'policy_runtime' = 'tensorflow' is not one of auto, torchscript")])
+def test_the_agents_executable_refuses_the_options_it_does_not_offer(tmp_path, ros_domain_id, untrained_policies,
+                                                                     params, words):
+    # the lone agent's parameters, declared by the same code; the per-robot options a hosting
+    # process cannot give each robot are refused by name (exit status 2)
+    proc = _agents(tmp_path, 'ids:=0..2', 'robots:=4', f'policy:={untrained_policies["flock2d"]}', *params)
+    out = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 2 and words in out, out
+
+
 def test_the_agents_executable_stops_on_sigint(tmp_path, ros_domain_id, untrained_policies):
     # (its report at exit is checked by the launcher tests above, which stop it with SIGINT)
     import time
-    proc = _agents(tmp_path, 'ids:=[2, 5]', 'robots:=6', f'policy:={untrained_policies["flock2d"]}', 'mode:=lockstep')
+    proc = _agents(tmp_path, 'ids:=[2, 5]', 'robots:=6', f'policy:={untrained_policies["flock2d"]}', 'mode:=lockstep',
+                   'policy_runtime:=torchscript', 'twist_frame:=world')
     lines = []
     deadline = time.monotonic() + 120
     for line in proc.stdout:  # until the node is up (its last line at construction)
@@ -101,7 +117,7 @@ def test_the_agents_executable_stops_on_sigint(tmp_path, ros_domain_id, untraine
         if 'robots [2, 5] (2 hosted) of 6' in line or time.monotonic() > deadline:
             break
     assert any('robots [2, 5] (2 hosted) of 6' in line for line in lines), ''.join(lines)
-    assert '[agents_2_5]' in lines[-1]
+    assert '[agents_2_5]' in lines[-1] and 'on torchscript' in lines[-1]
     proc.send_signal(signal.SIGINT)
     rest = proc.communicate(timeout=30)[0]
     assert proc.returncode == 0, ''.join(lines) + rest

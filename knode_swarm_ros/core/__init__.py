@@ -24,7 +24,7 @@ from typing import Any
 # its submodule: importing a submodule sets the package attribute of the same name.)
 from .delay_buffer import DelayBuffer
 from .metrics import amd, avd, pod_energy, pod_kld
-from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_single
+from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_rows, neighbour_matrix_single
 from .policy_meta import PolicyError, shipped_policy_path
 from .policy_runtime import RUNTIMES, OnnxPolicy, load_runtime, onnx_twin_path
 from .rollout import rollout, zoh_step
@@ -42,7 +42,7 @@ _LAZY = {
 _MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
 __all__ = sorted(list(_MODULE_OF) + [
     "DelayBuffer", "amd", "avd", "pod_energy", "pod_kld", "neighbour_matrices", "neighbour_matrix",
-    "neighbour_matrix_single", "rollout", "zoh_step", "SCENARIOS", "Scenario", "get_scenario",
+    "neighbour_matrix_single", "neighbour_matrix_rows", "rollout", "zoh_step", "SCENARIOS", "Scenario", "get_scenario",
     "TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref", "save_trajectories",
     "PolicyError", "shipped_policy_path", "RUNTIMES", "OnnxPolicy", "load_runtime", "onnx_twin_path"])
 

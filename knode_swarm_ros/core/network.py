@@ -23,7 +23,7 @@ import numpy as np
 from .geometry import distances, pair_distances
 
 __all__ = ["neighbour_matrix", "neighbour_matrix_single", "neighbour_matrices", "neighbour_index",
-           "neighbour_matrix_torch", "delayed_index"]
+           "neighbour_matrix_torch", "neighbour_matrix_rows", "delayed_index"]
 
 
 def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -135,15 +135,35 @@ def neighbour_matrix_single(i: int, z_now_i: np.ndarray, z_delayed: np.ndarray,
     Returns:
         ``Y [k, d]`` and ``mask [k]`` bool, identical to row i of :func:`neighbour_matrix`.
     """
+    Y, mask = neighbour_matrix_rows([i], np.asarray(z_now_i)[None, :], z_delayed, position_dim, d_cr, k)
+    return Y[0], mask[0]
+
+
+def neighbour_matrix_rows(rows, z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int,
+                          d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
+    """Neighbour matrices of the robots at ``rows`` of one snapshot (the robots a process hosts).
+
+    Each robot's matrix is computed from its own row of distances alone, so the result is
+    identical to those rows of :func:`neighbour_matrix` and to :func:`neighbour_matrix_single`
+    one robot at a time, whatever the other rows are.
+
+    Args:
+        rows: ``[q]`` indices of the robots within ``z_delayed`` (distinct or not).
+        z_now: ``[q, d]`` their own states at step t.
+        z_delayed: ``[n, d]`` the states at t - tau of the robots heard (rows ``rows`` included).
+
+    Returns:
+        ``Y [q, k, d]`` and ``mask [q, k]`` bool.
+    """
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
     z_delayed = np.asarray(z_delayed)
     pos = z_delayed[:, :position_dim]
-    dist = distances(pos[i:i + 1], pos)
-    dist[0, i] = np.inf
+    dist = distances(pos[rows], pos)
+    dist[np.arange(len(rows)), rows] = np.inf   # a robot is not its own neighbour
     index, valid = _rank(dist, d_cr, k)
-    Y, mask = _assemble(np.asarray(z_now_i)[None, :], z_delayed, index, valid)
-    return Y[0], mask[0]
+    return _assemble(np.asarray(z_now), z_delayed, index, valid)
 
 
 def delayed_index(T: int, tau: int) -> np.ndarray:

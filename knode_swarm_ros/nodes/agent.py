@@ -24,16 +24,16 @@ from . import qos
 from .agent_health import AgentHealth
 from .agent_lifecycle import ManagedAgentMixin
 from .agent_link import AgentLink
-from .agent_logic import DROP_REASONS, AgentConfig, AgentLogic
+from .agent_logic import DROP_REASONS, AgentLogic
+from .agent_params import declare_agent_parameters
 from .agent_unicycle import AgentUnicycle
-from .common import (MODES, ConfigError, agent_status_topic,
-                     command_topic, is_robot_frame, odom_topic, robot_frame, robot_id_list, status_json)
-from .control_period import RATE_CHECKS, shipped_policy_for_rate
-from .conversions import (TWIST_FRAMES, CdrError, command_msg_type, command_to_msg, odom_fields_from_cdr,
+from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
+from .control_period import shipped_policy_for_rate
+from .conversions import (CdrError, command_msg_type, command_to_msg, odom_fields_from_cdr,
                           odom_from_cdr, time_msg)
 from .executor import run_node
 from .reporting import LOG_EVERY_S as _LOG_EVERY_S, Throttle, throttled_log, write_json_report
-from .params import check_overrides, declare, declare_int_array, node_name_from_args
+from .params import check_overrides, declare, node_name_from_args
 
 __all__ = ['AgentNode', 'main', 'load_agent_policy']
 
@@ -104,55 +104,18 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
         if robot_id < 0:
             raise ConfigError("parameter 'id' is required: pass -p id:=N")
-        robots = declare(self, 'robots', 10, 'swarm size: robot ids are 0 .. robots-1 (unless robot_ids is set)',
-                         int_range=(1, 10_000))
-        robot_ids = declare_int_array(self, 'robot_ids', "the swarm's robot ids (overrides 'robots')")
-        scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's; with policy "
-                           'empty too: flock2d)', choices=('', 'flock2d', 'boids3d'))
-        policy_path = declare(self, 'policy', '', 'TorchScript policy file, or its ONNX twin (empty: the shipped '
-                              'policy of scenario; realtime: the one trained for control_rate, if shipped)')
-        runtime = declare(self, 'policy_runtime', 'auto', 'auto: onnxruntime when POLICY.onnx exists and onnxruntime '
-                          'is installed, else TorchScript; torchscript; onnxruntime (no torch import)',
-                          choices=('auto', 'torchscript', 'onnxruntime'))
-        mode = declare(self, 'mode', 'realtime', 'lockstep: answer each own state once every needed neighbour '
-                       'state is here; realtime: a timer at control_rate', choices=MODES)
-        control_rate = declare(self, 'control_rate', 20.0, 'realtime control rate in Hz (on the ROS clock)',
-                               float_range=(0.01, 1000.0))
-        state_timeout = declare(self, 'state_timeout', 0.5, 'seconds after which a silent neighbour leaves the '
-                                'neighbour set and a stale own state gives a zero command', float_range=(1e-3, 3600.0))
-        future_tolerance = declare(self, 'future_tolerance', 0.5, 'states stamped more than this many seconds '
-                                   'ahead of the clock are dropped', float_range=(0.0, 3600.0))
-        command_limit = declare(self, 'command_limit', 0.0, 'per-axis command saturation (0: the policy\'s limit); '
-                                'the tighter of this and the policy\'s limit applies', float_range=(0.0, 1e9))
-        k = declare(self, 'k', 0, "rows of Y (0: the policy's; another value must equal it)", int_range=(0, 1000))
-        d_cr = declare(self, 'd_cr', 0.0, "communication radius (0: the policy's; another value must equal it)",
-                       float_range=(0.0, 1e9))
-        tau = declare(self, 'tau', -1, "delay in steps (-1: the policy's; another value must equal it)",
-                      int_range=(-1, 100_000))
-        dt = declare(self, 'dt', 0.0, "seconds per step (0: the policy's; another value must equal it)",
-                     float_range=(0.0, 3600.0))
-        rate_check = declare(self, 'rate_check', 'warn', "realtime: when 1 / control_rate differs from the policy's "
-                             'dt, warn once (warn) or refuse to start (refuse)', choices=RATE_CHECKS)
-        parity_batch = declare(self, 'parity_batch', True, 'lockstep: evaluate the policy in a batch shaped like the '
-                               "offline rollout's, so lockstep runs equal core.rollout bit for bit")
-        threads = declare(self, 'torch_threads', 1, 'intra-op threads of the policy runtime (torch or onnxruntime)',
-                          int_range=(1, 256))
-        status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
-                                float_range=(0.01, 3600.0))
-        self.twist_frame = declare(self, 'twist_frame', 'body', 'frame of the twist in the robots\' Odometry: body '
-                                   '(REP 105 child frame, rotated into the world by the pose orientation) or world '
-                                   '(a driver that deviates from REP 105)', choices=TWIST_FRAMES)
+        p = declare_agent_parameters(self)  # the same for the hosting ``agents`` node
+        mode, control_rate, state_timeout = p.mode, p.control_rate, p.state_timeout
+        self.twist_frame = p.twist_frame
         self.link = AgentLink(self, robot_id, mode)  # link model (loss, delay, range): off by default
         self.report_path = declare(self, 'report', '', 'write counters as JSON to this file at exit (empty: no)')
         check_overrides(self, sys.argv)
 
-        ids = robot_id_list(robots, robot_ids)
-        config = AgentConfig(robot_id, ids, mode, state_timeout, future_tolerance, command_limit, parity_batch,
-                             control_rate=control_rate, rate_check=rate_check)
+        ids = p.ids
+        config = p.config(robot_id)
         config.validate()
 
-        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt, runtime, threads,
-                                   control_rate if mode == 'realtime' else 0.0)
+        policy = load_agent_policy(p.policy, *p.policy_args())
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
         self._warm_up()
@@ -177,7 +140,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
-        self.status_timer = self.create_timer(status_period, self._publish_status, clock=self._wall)
+        self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
         self.get_logger().info(
             f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
             f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '

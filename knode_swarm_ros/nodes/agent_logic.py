@@ -29,8 +29,10 @@ core's neighbour-matrix builder and the policy file's controller:
   (:mod:`.control_period`): equal is silent, different warns once (an event) or, with
   ``rate_check`` ``refuse``, raises :class:`ConfigError`; :meth:`status` reports the ratio.
 
-Y_i comes from :func:`knode_swarm_ros.core.neighbour_matrix_single` with the rows ordered by
-robot id (ties go to the lower id, as in the offline rollout). With ``parity_batch`` the policy
+Y_i comes from :func:`knode_swarm_ros.core.neighbour_matrix_rows` with the rows ordered by
+robot id (ties go to the lower id, as in the offline rollout). What the robot hears (delay
+buffer, newest stamps, receipt counters) is its :class:`.hearing.Hearing`, shared by the robots
+of a hosting process (they hear the same). With ``parity_batch`` the policy
 is evaluated in a batch shaped like the offline rollout's (one row per robot, this robot's
 matrix at its own index): float32 matrix products round differently for different batch
 shapes, and this makes a lockstep run equal :func:`knode_swarm_ros.core.rollout` bit for bit
@@ -40,8 +42,9 @@ policy's ``command_limit``, lowered (never raised) by the ``command_limit`` para
 
 A process that hosts several robots (``agents``, :mod:`.hosted_logic`) runs one AgentLogic per
 robot and evaluates their policies together: ``lockstep_next`` / ``tick_next`` stop short of the
-policy call and hand back a :class:`Request` (Y_i, mask), and ``finish(request, u)`` applies
-the command exactly as ``lockstep_poll`` / ``tick`` do, which are those two steps with the
+policy call and hand back a :class:`Request` (own state and the rows heard), :func:`build_matrices`
+builds Y_i and the mask of many requests at once, and ``finish(request, u)`` applies the command
+exactly as ``lockstep_poll`` / ``tick`` do, which are those steps for one request with the
 policy called in between (:func:`.policy_call.evaluate_rows`).
 """
 from __future__ import annotations
@@ -51,18 +54,16 @@ from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 import numpy as np
 
-from ..core.delay_buffer import DelayBuffer
-from ..core.network import neighbour_matrix_single
-from ..core.saturation import effective_limit, saturate, stop_command
+from ..core.saturation import effective_limit, stop_command
 from ..core.scenarios import get_scenario
 from .common import MODES, ConfigError
 from .control_period import RATE_CHECKS, check_control_period
+from .agent_batch import Request, build_matrices, clean_commands
+from .hearing import DROP_REASONS, Counters, Hearing, Rows
 from .policy_call import evaluate_rows
 
-__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS']
-
-#: Reasons ``receive`` drops a state for (each has a counter).
-DROP_REASONS = ('malformed', 'unknown_id', 'bad_size', 'non_finite', 'too_old', 'too_future')
+__all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS', 'build_matrices',
+           'clean_commands']
 
 
 class PolicyLike(Protocol):
@@ -139,17 +140,6 @@ class Command:
 
 
 @dataclass
-class Request:
-    """A command waiting for its policy output: ``Y [k, d]`` and ``mask [k]`` of own step
-    ``step``, to be stamped ``stamp_ns`` (see :meth:`AgentLogic.finish`)."""
-
-    step: int
-    stamp_ns: int
-    Y: np.ndarray
-    mask: np.ndarray
-
-
-@dataclass
 class _Lockstep:
     first_step: Optional[int] = None
     pending: Optional[int] = None
@@ -162,7 +152,7 @@ class _Lockstep:
 class AgentLogic:
     """Buffering, staleness, Y_i and the command of robot ``config.robot_id`` (see module doc)."""
 
-    def __init__(self, config: AgentConfig, policy: PolicyLike):
+    def __init__(self, config: AgentConfig, policy: PolicyLike, hearing: Optional[Hearing] = None):
         config.validate()
         self.config = config
         self.policy = policy
@@ -177,14 +167,16 @@ class AgentLogic:
         self.limit: Optional[float] = effective_limit(policy.command_limit, config.command_limit)
         self.timeout_ns = int(round(config.state_timeout * 1e9))
         self.future_ns = int(round(config.future_tolerance * 1e9))
-        self.buffer = DelayBuffer(self.dt, self.tau, horizon=max(64, 4 * self.tau + 8))
-        self.newest_ns: Dict[int, int] = {}     # newest stamp heard per robot
+        # What this robot hears (buffer, newest stamps, receipt counters): its own, or the one its
+        # hosting process files for all its robots, which hear the same (nodes/hearing.py).
+        own_hearing = Hearing(self.spec.state_dim, self.ids, self.dt, self.tau, self.timeout_ns, self.future_ns)
+        if hearing is not None and hearing.key() != own_hearing.key():
+            raise ValueError(f'robot {self.me}: a shared hearing must have the same settings')
+        self.hearing = hearing if hearing is not None else own_hearing
         self.stamps: Dict[Tuple[int, int], int] = {}  # (robot, step) -> exact stamp (own robot only)
-        self.counters: Dict[str, int] = {name: 0 for name in (
-            'received', 'accepted', 'duplicate', *DROP_REASONS, 'commands', 'stop_commands',
-            'resent', 'gave_up', 'non_finite_command', 'clipped')}
+        self.counters = Counters(self.hearing.counters, {name: 0 for name in (
+            'commands', 'stop_commands', 'resent', 'gave_up', 'non_finite_command', 'clipped')})
         self.last_command: Optional[Command] = None
-        self.last_drop: Optional[Tuple[str, int, int]] = None  # (reason, robot, stamp_ns)
         self.events: List[str] = []  # human-readable notes for the node to log, drained by it
         self._lock = _Lockstep()
         self._last_tick_ns: Optional[int] = None
@@ -198,6 +190,21 @@ class AgentLogic:
             self.events.append(self.period.describe())
 
     # --- input ---------------------------------------------------------------------
+    @property
+    def buffer(self):
+        """The :class:`DelayBuffer` of what this robot heard."""
+        return self.hearing.buffer
+
+    @property
+    def newest_ns(self) -> Dict[int, int]:
+        """Newest stamp heard per robot."""
+        return self.hearing.newest_ns
+
+    @property
+    def last_drop(self) -> Optional[Tuple[str, int, int]]:
+        """(reason, robot, stamp_ns) of the latest dropped state."""
+        return self.hearing.last_drop
+
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
                 wall: float = 0.0, verdict: Any = '') -> str:
         """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
@@ -205,28 +212,23 @@ class AgentLogic:
 
         ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
         ``wall`` a monotonic time in seconds (lockstep waiting). ``verdict``: the result of
-        :meth:`check` on these arguments when the caller has it already (a hosting process checks
-        a message once for all its robots, whose settings are the same).
+        :meth:`check` on these arguments when the caller has it already.
         """
-        c = self.counters
-        c['received'] += 1
-        reason = self.check(robot, stamp_ns, z, now_ns) if verdict == '' else verdict
-        if reason is not None:
-            c[reason] += 1
-            self.last_drop = (reason, -1 if robot is None else int(robot), int(stamp_ns))
-            return reason
-        robot = int(robot)
-        z = np.asarray(z, dtype=np.float64)
-        step = self.buffer.step_of(stamp_ns * 1e-9)
-        if not self.buffer.add(robot, stamp_ns * 1e-9, z):
-            c['duplicate'] += 1
+        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, verdict)
+        if step is not None:
+            self.react(int(robot), int(stamp_ns), step, outcome == 'accepted', wall)
+        return outcome
+
+    def react(self, robot: int, stamp_ns: int, step: int, accepted: bool, wall: float) -> None:
+        """What robot ``robot``'s state of ``step`` (just filed: ``accepted``, or a duplicate)
+        changes for this robot: its own state opens a command (or asks for a re-send); a
+        robot left out is waited for again. A hosting process files a state once and calls
+        this only for the robots it concerns (its owner, and those that left it out)."""
+        if not accepted:
             lock = self._lock
             if robot == self.me and lock.answered == step and self.last_command is not None:
                 lock.resend = True
-            return 'duplicate'
-        c['accepted'] += 1
-        if stamp_ns > self.newest_ns.get(robot, -1):
-            self.newest_ns[robot] = int(stamp_ns)
+            return
         if robot == self.me:
             self.stamps[(robot, step)] = int(stamp_ns)
             self._forget_stamps(step)
@@ -234,14 +236,10 @@ class AgentLogic:
         elif robot in self._lock.gone and step >= self._current_step() - self.tau:
             self._lock.gone.discard(robot)
             self.events.append(f'robot {robot} is heard again (step {step}): waiting for it again')
-        return 'accepted'
 
     def malformed(self) -> str:
         """Count a message that could not be decoded at all; returns ``malformed``."""
-        self.counters['received'] += 1
-        self.counters['malformed'] += 1
-        self.last_drop = ('malformed', -1, -1)
-        return 'malformed'
+        return self.hearing.malformed()
 
     def _current_step(self) -> int:
         lock = self._lock
@@ -250,19 +248,7 @@ class AgentLogic:
 
     def check(self, robot, stamp_ns, z, now_ns) -> Optional[str]:
         """The drop reason of a state (None: acceptable), before the duplicate check."""
-        if robot is None or int(robot) not in self.index:
-            return 'unknown_id'
-        z = np.asarray(z)
-        if z.shape != (self.spec.state_dim,):
-            return 'bad_size'
-        if not np.all(np.isfinite(z)):
-            return 'non_finite'
-        if now_ns is not None and now_ns > 0:
-            if stamp_ns < now_ns - self.timeout_ns:
-                return 'too_old'
-            if stamp_ns > now_ns + self.future_ns:
-                return 'too_future'
-        return None
+        return self.hearing.check(robot, stamp_ns, z, now_ns)
 
     def _forget_stamps(self, step: int) -> None:
         if len(self.stamps) > 4 * self.buffer.horizon:
@@ -279,14 +265,27 @@ class AgentLogic:
             lock.pending = step
             lock.pending_since = wall
 
+    @property
+    def left_out(self) -> set:
+        """Lockstep: the robots given up on (no state within ``state_timeout``) until heard again."""
+        return self._lock.gone
+
+    @property
+    def waiting_since(self) -> Optional[float]:
+        """Lockstep: the wall time the pending own step arrived (None: nothing pending or re-sent)."""
+        lock = self._lock
+        return lock.pending_since if lock.pending is not None or lock.resend else None
+
     # --- readiness -----------------------------------------------------------------
     def heard(self) -> List[int]:
         """Robots heard from at least once (ids, ascending)."""
-        return [rid for rid in self.ids if rid in self.newest_ns]
+        newest = self.hearing.newest_ns
+        return [rid for rid in self.ids if rid in newest]
 
     def missing(self) -> List[int]:
         """Robots never heard from."""
-        return [rid for rid in self.ids if rid not in self.newest_ns]
+        newest = self.hearing.newest_ns
+        return [rid for rid in self.ids if rid not in newest]
 
     @property
     def ready(self) -> bool:
@@ -314,26 +313,26 @@ class AgentLogic:
             return None
         s = lock.pending
         need = max(s - self.tau, lock.first_step)
-        rows: Dict[int, np.ndarray] = {}
-        missing = []
-        for rid in self.ids:
-            z = self.buffer.get(rid, need)
-            if z is not None:
-                rows[rid] = z
-            elif rid == self.me:
-                z = self.buffer.at(rid, need)  # own delayed state lost: the closest one before
-                if z is not None:
-                    rows[rid] = z
-            elif rid not in lock.gone:
-                missing.append(rid)
+        timed_out = wall - lock.pending_since >= self.config.state_timeout
+        # Fewer states of step `need` filed than the robots waited for (the peers not left out, and
+        # this one when its own is among them): one is missing, no need to look which.
+        waited = len(self.ids) - len(lock.gone) - (self.buffer.get(self.me, need) is None)
+        if not timed_out and self.hearing.count_at(need) < waited:
+            return None
+        rows = self.hearing.exact(need)  # the snapshot every robot of the process asking for `need` shares
+        missing = [] if len(rows) == len(self.ids) else [
+            rid for rid in self.ids if rid not in rows.index and rid != self.me and rid not in lock.gone]
         if missing:
-            if wall - lock.pending_since < self.config.state_timeout:
+            if not timed_out:
                 return None
             for rid in missing:
                 lock.gone.add(rid)
                 self.counters['gave_up'] += 1
             self.events.append(f'step {s}: no state of step {need} from robot(s) {missing} within '
                                f'{self.config.state_timeout:g} s: left out until heard again')
+        if self.me not in rows.index:
+            z = self.buffer.at(self.me, need)  # own delayed state lost: the closest one before
+            rows = rows.with_row(self.me, z)
         own = self.buffer.get(self.me, s)
         request = self._request(s, self.stamps.get((self.me, s), int(round(s * self.dt * 1e9))), own, rows)
         lock.answered = s
@@ -359,17 +358,8 @@ class AgentLogic:
         if clock_known and now_ns - own_ns > self.timeout_ns:
             return self._stop(int(now_ns), own, own_ns, period_ns)
         self._stop_v = None
-        rows: Dict[int, np.ndarray] = {}
-        for rid in self.ids:
-            newest = self.newest_ns.get(rid)
-            if newest is None:
-                continue
-            if rid != self.me and clock_known and now_ns - newest > self.timeout_ns:
-                continue  # silent longer than the timeout: not a neighbour
-            z = self.buffer.delayed(rid, s)
-            if z is not None:
-                rows[rid] = z
-        return self._request(s, own_ns, own, rows)
+        # every robot heard within the timeout (this one too: its own state is not stale), at s - tau
+        return self._request(s, own_ns, own, self.hearing.delayed(s, now_ns))
 
     def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
         """The stop command of a stale own state (see the module doc)."""
@@ -396,9 +386,13 @@ class AgentLogic:
         """Y ``[k, d]`` and mask ``[k]`` from the own state ``own [d]`` and each robot's delayed
         state ``rows {id: [d]}`` (this robot's included: it centres the radius), rows in id order."""
         ids = sorted(rows)
-        z_delayed = np.stack([rows[rid] for rid in ids])
-        return neighbour_matrix_single(ids.index(self.me), own, z_delayed, self.spec.position_dim,
-                                       self.d_cr, self.k)
+        request = Request(0, 0, self.me, np.asarray(own), Rows(ids, [rows[rid] for rid in ids], len(own)))
+        self.build([request])
+        return request.Y, request.mask
+
+    def build(self, requests: Sequence[Request]) -> None:
+        """Fill Y and mask of ``requests`` (this robot's, or its process-mates': same settings)."""
+        build_matrices(requests, self.spec.position_dim, self.d_cr, self.k)
 
     @property
     def parity_rows(self) -> bool:
@@ -412,31 +406,32 @@ class AgentLogic:
             return evaluate_rows(self.policy, Y[None], mask[None], [self.index[self.me]], len(self.ids))[0]
         return evaluate_rows(self.policy, Y[None], mask[None])[0]
 
-    def _request(self, step: int, stamp: int, own: np.ndarray, rows: Dict[int, np.ndarray]) -> Request:
-        Y, mask = self.neighbour_matrix(own, rows)
-        return Request(int(step), int(stamp), Y, mask)
+    def _request(self, step: int, stamp: int, own: np.ndarray, rows: Rows) -> Request:
+        return Request(int(step), int(stamp), self.me, own, rows)
 
     def _now(self, item):
-        """A :class:`Request` evaluated alone and finished; anything else as it is."""
+        """A :class:`Request` built, evaluated alone and finished; anything else as it is."""
         if isinstance(item, Request):
+            self.build([item])
             return self.finish(item, self.evaluate(item.Y, item.mask))
         return item
 
     def finish(self, request: Request, u: np.ndarray) -> Command:
         """The command of ``request`` from the policy's output ``u [m]``: a non-finite output
         becomes zero, then the per-axis clip; counted and remembered as the last command."""
-        step, stamp, mask = request.step, request.stamp_ns, request.mask
-        u = np.asarray(u, dtype=np.float64)
-        if not np.all(np.isfinite(u)):
+        value, non_finite, clipped = clean_commands(np.asarray(u, dtype=np.float64)[None], self.limit)
+        return self.commit(request, value[0], bool(non_finite[0]), bool(clipped[0]), u)
+
+    def commit(self, request: Request, value: np.ndarray, non_finite: bool, clipped: bool, raw) -> Command:
+        """:meth:`finish` after :func:`clean_commands` (a hosting process cleans its batch at once)."""
+        step = request.step
+        if non_finite:
             self.counters['non_finite_command'] += 1
-            self.events.append(f'step {step}: the policy returned {u.tolist()}: publishing zero')
-            u = np.zeros(self.spec.command_dim)
-        clipped = saturate(u, self.limit)
-        if np.any(clipped != u):
+            self.events.append(f'step {step}: the policy returned {np.asarray(raw).tolist()}: publishing zero')
+        if clipped:
             self.counters['clipped'] += 1
-        u = clipped
         self.counters['commands'] += 1
-        cmd = Command(int(stamp), int(step), u, neighbours=int(mask.sum()) - 1)
+        cmd = Command(int(request.stamp_ns), int(step), value, neighbours=int(request.mask.sum()) - 1)
         self.last_command = cmd
         return cmd
 

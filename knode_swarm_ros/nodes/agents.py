@@ -4,11 +4,17 @@
 (``ids`` a list ``[0, 1, 5]`` or a range ``'0..49'``; the other parameters are the ``agent``'s).
 
 For simulating large swarms on one machine; a real robot runs the lone ``agent``. Each hosted
-robot runs the same :class:`AgentLogic` as a lone agent (:class:`HostedAgents`): its own delay
-buffer, neighbour matrix, counters, ``robot_<id>/cmd_*`` and ``robot_<id>/agent_status``
-topics, and only what its robot hears. Shared plumbing: one raw subscription per robot's
-``robot_<j>/odom`` (decoded once, handed to every hosted robot), one executor, one policy
-module, one batched policy call per tick. The node is called ``agents_<first>_<last>``.
+robot runs the same :class:`AgentLogic` as a lone agent (:class:`HostedAgents`): its own
+lockstep bookkeeping, neighbour matrix, counters, ``robot_<id>/cmd_*`` and
+``robot_<id>/agent_status`` topics, and only what its robot hears. Shared plumbing: one raw
+subscription per robot's ``robot_<j>/odom``, each state decoded, checked and filed once in the
+process's :class:`.hearing.Hearing` (what each hosted robot would have filed alike), one
+executor, one policy module, one batched policy call per tick. The node is called
+``agents_<first>_<last>``.
+
+Parameters: the lone agent's, declared by the same code (:mod:`.agent_params`), with ``ids``
+instead of ``id``. Not offered, refused at start with exit status 2 (:func:`refuse_per_robot_options`):
+the link model (``link_*``), ``managed: true`` and ``command_interface: unicycle``.
 """
 from __future__ import annotations
 
@@ -24,16 +30,16 @@ from std_msgs.msg import String
 
 from . import qos
 from .agent import load_agent_policy
-from .agent_logic import DROP_REASONS, AgentConfig
-from .common import (MODES, ConfigError, agent_status_topic, command_topic, odom_topic, robot_frame,
-                     robot_id_list, status_json)
-from .conversions import CdrError, command_msg_type, command_to_msg, odom_from_cdr
+from .agent_logic import DROP_REASONS
+from .agent_params import declare_agent_parameters
+from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
+from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr, string_to_cdr
 from .executor import run_node
 from .hosted_logic import HostedAgents, format_ids, parse_ids
-from .params import declare, declare_int_array
+from .params import check_overrides, declare
 from .reporting import Throttle, write_json_report
 
-__all__ = ['AgentsNode', 'main', 'node_name_for']
+__all__ = ['AgentsNode', 'main', 'node_name_for', 'refuse_per_robot_options']
 
 
 
@@ -51,6 +57,29 @@ def node_name_for(argv) -> str:
     return 'agents'
 
 
+def refuse_per_robot_options(node, robot_id: int, p, spec) -> None:
+    """Declare the lone agent's options that a hosting process does not offer (the same
+    parameters, by the same modules) and refuse any that is switched on with a
+    :class:`ConfigError` naming it (exit status 2):
+
+    * ``link_*`` (the link model): each robot would hear through its own lossy link, while the
+      robots of a process share what they hear (nodes/hearing.py);
+    * ``managed: true``: a lifecycle is one robot's (configure, activate, brake to rest);
+    * ``command_interface: unicycle``: a differential-drive robot is a real robot: run its ``agent``.
+    """
+    from .agent_link import AgentLink
+    from .agent_unicycle import AgentUnicycle
+    lone = 'run one agent process per robot (agent, or swarm --agents-per-process 1)'
+    if AgentLink(node, robot_id, p.mode).enabled:
+        raise ConfigError(f"parameters 'link_*' (the link model) are not offered by the agents node: its robots "
+                          f'share what they hear; {lone}')
+    if declare(node, 'managed', False, 'not offered by the agents node (a lifecycle is one robot\'s): must be '
+               'false'):
+        raise ConfigError(f"parameter 'managed' = true: the agents node is not a lifecycle node; {lone}")
+    if AgentUnicycle(node, robot_id, spec, p.mode, p.control_rate, qos.COMMAND).enabled:
+        raise ConfigError(f"parameter 'command_interface' = 'unicycle' is not offered by the agents node; {lone}")
+
+
 class AgentsNode(Node):
     """Thin ROS wrapper around :class:`HostedAgents` (see the module doc and docs/ros.md)."""
 
@@ -62,42 +91,19 @@ class AgentsNode(Node):
         if raw_ids in ('', None):
             raise ConfigError("parameter 'ids' is required: pass -p ids:=[0,1,2] or -p ids:=0..49")
         hosted = parse_ids(raw_ids)
-        # The lone agent's parameters, same names and meaning (docs/ros.md, "agent").
-        robots = declare(self, 'robots', 10, 'swarm size: robot ids are 0 .. robots-1 (unless robot_ids is set)',
-                         int_range=(1, 10_000))
-        robot_ids = declare_int_array(self, 'robot_ids', "the swarm's robot ids (overrides 'robots')")
-        scenario = declare(self, 'scenario', '', "flock2d or boids3d (empty: the policy's)",
-                           choices=('', 'flock2d', 'boids3d'))
-        policy_path = declare(self, 'policy', '', 'TorchScript policy file (empty: the shipped policy of scenario)')
-        mode = declare(self, 'mode', 'realtime', 'lockstep or realtime (as the agent)', choices=MODES)
-        control_rate = declare(self, 'control_rate', 20.0, 'realtime control rate in Hz (ROS clock)',
-                               float_range=(0.01, 1000.0))
-        state_timeout = declare(self, 'state_timeout', 0.5, 'seconds after which a silent neighbour leaves the '
-                                'neighbour set and a stale own state gives a zero command', float_range=(1e-3, 3600.0))
-        future_tolerance = declare(self, 'future_tolerance', 0.5, 'states stamped more than this many seconds '
-                                   'ahead of the clock are dropped', float_range=(0.0, 3600.0))
-        command_limit = declare(self, 'command_limit', 0.0, "per-axis command saturation (0: the policy's limit)",
-                                float_range=(0.0, 1e9))
-        k = declare(self, 'k', 0, "rows of Y (0: the policy's)", int_range=(0, 1000))
-        d_cr = declare(self, 'd_cr', 0.0, "communication radius (0: the policy's)", float_range=(0.0, 1e9))
-        tau = declare(self, 'tau', -1, "delay in steps (-1: the policy's)", int_range=(-1, 100_000))
-        dt = declare(self, 'dt', 0.0, "seconds per step (0: the policy's)", float_range=(0.0, 3600.0))
-        parity_batch = declare(self, 'parity_batch', True, 'lockstep: a rollout-shaped batch (bit-for-bit parity)')
-        threads = declare(self, 'torch_threads', 1, 'torch intra-op threads', int_range=(1, 256))
-        status_period = declare(self, 'status_period', 0.5, 'seconds between status messages (wall clock)',
-                                float_range=(0.01, 3600.0))
+        p = declare_agent_parameters(self)  # the lone agent's parameters: one declaration for both
         self.report_path = declare(self, 'report', '', 'write every hosted robot\'s counters as JSON to this file '
                                    'at exit (empty: no)')
-
-        ids = robot_id_list(robots, robot_ids)
-        config = AgentConfig(hosted[0], ids, mode, state_timeout, future_tolerance, command_limit, parity_batch)
+        config = p.config(hosted[0])
         config.validate()
-        import torch  # here: parameter errors come without the torch import
-        torch.set_num_threads(threads)
-        policy = load_agent_policy(policy_path, scenario, k, d_cr, tau, dt)
+        policy = load_agent_policy(p.policy, *p.policy_args())
         self.hosted = HostedAgents(hosted, config, policy)
         self.spec = self.hosted.spec
-        self.mode = mode
+        refuse_per_robot_options(self, hosted[0], p, self.spec)
+        check_overrides(self, sys.argv)
+        self.mode = mode = p.mode
+        self.twist_frame = p.twist_frame
+        ids = self.hosted.ids
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._drops = {reason: 0 for reason in DROP_REASONS}
         self._log_throttle = Throttle()
@@ -109,19 +115,21 @@ class AgentsNode(Node):
                          for rid in hosted}
         self.status_pubs = {rid: self.create_publisher(String, agent_status_topic(rid), qos.STATUS)
                             for rid in hosted}
-        # One raw subscription per robot topic for every hosted robot (decoded once).
+        # One raw subscription per robot topic for every hosted robot (decoded and filed once).
         self.odom_subs = [self.create_subscription(Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM,
                                                    raw=True) for rid in ids]
         if mode == 'realtime':
-            self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)
+            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
-        self.status_timer = self.create_timer(status_period, self._publish_status, clock=self._wall)
+        self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
+        self._log_events()  # the control-period warning, once, at start
         self._publish_status()
         # last: this line says the node is up (tests wait for it)
         self.get_logger().info(
             f'robots {format_ids(hosted)} ({len(hosted)} hosted) of {len(ids)} ({policy.scenario}, {mode}): '
-            f'policy {policy.path} (k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g})')
+            f'policy {policy.path} on {policy.backend} (k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, '
+            f'dt={policy.dt:g})')
 
     def _warm_up(self, policy) -> None:
         import numpy as np
@@ -133,12 +141,12 @@ class AgentsNode(Node):
     # --- callbacks -----------------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.spec)
+            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
         except CdrError as exc:
             self.hosted.malformed()
             self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
             return
-        robot = topic_robot if frame in ('', robot_frame(topic_robot)) else None
+        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
         now = self.get_clock().now().nanoseconds
         outcome = self.hosted.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
@@ -152,15 +160,21 @@ class AgentsNode(Node):
 
     def _publish(self, commands) -> None:
         for rid, cmd in commands:
-            self.cmd_pubs[rid].publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self.cmd_pubs[rid].publish(command_to_cdr(cmd.stamp_ns, cmd.value, self.spec))  # bytes: no msg objects
+        if commands:  # notes come with commands (or a timer): not worth a look at every message
+            self._log_events()
+
+    def _log_events(self) -> None:
         for text in self.hosted.drain_events():
             self.get_logger().warning(text)
 
     def _on_lockstep_timer(self) -> None:
         self._publish(self.hosted.lockstep_poll(time.monotonic()))
+        self._log_events()
 
     def _on_tick(self) -> None:
         self._publish(self.hosted.tick(self.get_clock().now().nanoseconds))
+        self._log_events()
 
     def _note_drop(self, reason: str, detail: str) -> None:
         self._drops[reason] += 1
@@ -169,7 +183,7 @@ class AgentsNode(Node):
 
     def _publish_status(self) -> None:
         for rid, logic in self.hosted.logics.items():
-            self.status_pubs[rid].publish(String(data=status_json(**logic.status())))
+            self.status_pubs[rid].publish(string_to_cdr(status_json(**logic.status())))  # bytes: no msg objects
 
     def write_report(self) -> None:
         """Write every hosted robot's counters to the ``report`` file (if set)."""

@@ -50,8 +50,8 @@ from .orientation import yaw_quaternion
 
 __all__ = ['time_msg', 'time_ns', 'heading_to_quaternion', 'quaternion_to_heading',
            'yaw_quaternion', 'state_to_odom', 'odom_to_state', 'odom_to_cdr', 'fields_to_cdr', 'odom_from_cdr',
-           'odom_fields_from_cdr',
-           'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg', 'msg_to_command']
+           'odom_fields_from_cdr', 'CdrError', 'TWIST_FRAMES', 'command_msg_type', 'command_to_msg',
+           'command_to_cdr', 'string_to_cdr', 'msg_to_command']
 
 ScenarioLike = Union[str, Scenario]
 
@@ -228,6 +228,30 @@ def command_to_msg(ns: int, u, scenario: ScenarioLike):
     msg.header.stamp = time_msg(ns)
     msg.header.frame_id = WORLD_FRAME
     return msg
+
+
+def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
+    """The serialized form of ``command_to_msg(ns, u, scenario)``, built directly (a hosting
+    process publishes 100s of commands a step: no message objects)."""
+    if ns < 0:
+        raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
+    spec = _spec(scenario)
+    u = np.asarray(u, dtype=np.float64)
+    linear = (float(u[0]), float(u[1]), 0.0 if spec.command == 'acceleration' else float(u[2]))
+    buf = bytearray(_CDR_LE)
+    buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
+    _put_string(buf, WORLD_FRAME)
+    _pad(buf, 8)
+    buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
+    return bytes(buf)
+
+
+def string_to_cdr(text: str) -> bytes:
+    """The serialized form of ``std_msgs/String(data=text)`` (a hosting process publishes a
+    status per robot)."""
+    buf = bytearray(_CDR_LE)
+    _put_string(buf, text)
+    return bytes(buf)
 
 
 def msg_to_command(msg, scenario: ScenarioLike) -> Tuple[int, np.ndarray]:

@@ -1,14 +1,22 @@
 """Several robots' agents in one process, without ROS: what the ``agents`` node wires to topics.
 
 Each hosted robot runs its own :class:`AgentLogic`, the very class a lone ``agent`` runs: its
-own delay buffer, drops and counters, lockstep bookkeeping, neighbour matrix Y_i and command.
-It hears exactly what its robot would hear (every state the process receives goes to every
-hosted robot's logic, which files it by its own rules); nothing of one robot's state of mind
-reaches another. Shared is plumbing only: the process decodes each message once, holds one
-policy module, and evaluates the policy once per tick for every hosted robot whose command is
-due (:func:`.policy_call.evaluate_rows`), with each robot's matrix at its swarm index in a
+own lockstep bookkeeping (pending step, peers given up on, re-sends), counters of commands,
+neighbour matrix Y_i and command. What it hears is the process's :class:`.hearing.Hearing`:
+the hosted robots subscribe to the same topics and check each state by the same rules on the
+same clock, so each one's buffer would be the same; the process files each state once (one
+delay buffer, receipt counters, newest stamps) and every hosted robot reads it as its own.
+Nothing of one robot's state of mind reaches another. A state concerns only its owner (if hosted
+here) and the robots that gave up on its sender: only they react to it, and a lockstep poll
+looks only at them, or, when a step's states may be complete or a timeout may have passed, at
+every robot with a pending step (polling any other would return nothing).
+
+Shared is plumbing only: one policy module, the Y_i of all due robots built by one core call per
+snapshot of rows (:func:`.agent_logic.build_matrices`), one policy call per tick
+(:func:`.policy_call.evaluate_rows`), with each robot's matrix at its swarm index in a
 rollout-shaped batch when the logic asks for parity rows, so that any split of the swarm over
-processes reproduces :func:`knode_swarm_ros.core.rollout` bit for bit.
+processes reproduces :func:`knode_swarm_ros.core.rollout` bit for bit, and the commands cleaned
+as one batch (:func:`.agent_logic.clean_commands`).
 
 Batching in lockstep: with a delay (tau >= 1) a robot's command is due as soon as its own state
 arrives, so the hosted robots fall due one after the other within a step. A due request is held
@@ -26,7 +34,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .agent_logic import AgentConfig, AgentLogic, Command, PolicyLike, Request
+from .agent_logic import AgentConfig, AgentLogic, Command, PolicyLike, Request, clean_commands
 from .common import ConfigError
 from .policy_call import evaluate_rows
 
@@ -80,12 +88,13 @@ def format_ids(ids: Sequence[int]) -> str:
 
 
 class HostedAgents:
-    """One :class:`AgentLogic` per hosted robot and one policy call per tick for all of them.
+    """One :class:`AgentLogic` per hosted robot, one :class:`Hearing` and one policy call per tick.
 
     Args:
         hosted: the ids of the robots this process hosts (a subset of ``config.robot_ids``).
         config: the settings every hosted robot shares; ``robot_id`` is replaced per robot.
         policy: the one policy module, ``(Y [B, k, d], mask [B, k]) -> [B, m]``.
+        hold_s: lockstep: wall seconds a due request waits for the other hosted robots' ones.
     """
 
     def __init__(self, hosted: Sequence[int], config: AgentConfig, policy: PolicyLike, hold_s: float = 0.05):
@@ -96,56 +105,104 @@ class HostedAgents:
                               f"{format_ids(config.robot_ids)} (set 'robots' or 'robot_ids')")
         self.policy = policy
         self.hosted: List[int] = hosted
-        self.logics: Dict[int, AgentLogic] = {rid: AgentLogic(replace(config, robot_id=rid), policy)
-                                              for rid in hosted}
-        first = self._first = self.logics[hosted[0]]
+        first = self._first = AgentLogic(replace(config, robot_id=hosted[0]), policy)
+        self.hearing = first.hearing  # what every hosted robot hears, filed once (nodes/hearing.py)
+        self.logics: Dict[int, AgentLogic] = {hosted[0]: first}
+        for rid in hosted[1:]:
+            self.logics[rid] = AgentLogic(replace(config, robot_id=rid), policy, hearing=self.hearing)
         self.spec, self.ids, self.index = first.spec, first.ids, first.index
+        self.state_timeout = float(config.state_timeout)
         self.hold_s = float(hold_s)
         self._held: Dict[int, Request] = {}  # lockstep requests waiting for the rest of the step
         self._held_since = 0.0
+        # Lockstep polling touches only the robots a message concerns (see _poll_set).
+        self._active: set = set()     # robots with a pending step or a re-send
+        self._touched: set = set()    # robots a message concerned since the last poll
+        self._poll_all = False        # a step may have become complete for everyone waiting
+        self._deadline = float('inf')  # wall time of the next timeout (a peer or a held request), or earlier
+        self._full = False
+        self._most_left_out = 0       # the largest number of robots any hosted robot left out
         self.calls = 0      # batched policy calls
         self.evaluated = 0  # matrices evaluated in them
 
-    # --- input: every state to every hosted robot ------------------------------------------
+    # --- input: every state, filed once, to the hosted robots it concerns -------------------
     def receive(self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None,
                 wall: float = 0.0) -> str:
-        """Give the state to every hosted robot's logic (see :meth:`AgentLogic.receive`);
-        returns the first hosted robot's outcome (they apply the same rules to the same input)."""
-        verdict = self._first.check(robot, stamp_ns, z, now_ns)  # the same rules for all: check once
-        if verdict is None:
-            z = np.asarray(z, dtype=np.float64)
-        outcomes = [logic.receive(robot, stamp_ns, z, now_ns, wall, verdict) for logic in self.logics.values()]
-        return outcomes[0]
+        """File the state once for every hosted robot (see :meth:`AgentLogic.receive`); its
+        owner (if hosted here) and the robots that left its sender out react to it."""
+        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns)
+        if step is None:
+            return outcome
+        robot, accepted = int(robot), outcome == 'accepted'
+        owner = self.logics.get(robot)
+        if owner is not None:
+            owner.react(robot, int(stamp_ns), step, accepted, wall)
+            self._touched.add(robot)
+            if owner.waiting_since is not None:
+                self._active.add(robot)
+                self._deadline = min(self._deadline, owner.waiting_since + self.state_timeout)
+        if accepted and self._most_left_out:
+            for rid, logic in self.logics.items():
+                if logic is not owner and robot in logic.left_out:
+                    logic.react(robot, int(stamp_ns), step, True, wall)
+                    self._touched.add(rid)
+            self._most_left_out = max(len(logic.left_out) for logic in self.logics.values())
+        if accepted and self.hearing.count_at(step) >= len(self.ids) - 1 - self._most_left_out:
+            self._poll_all = True
+        return outcome
 
     def malformed(self) -> str:
-        """Count an undecodable message at every hosted robot."""
-        for logic in self.logics.values():
-            logic.malformed()
-        return 'malformed'
+        """Count an undecodable message (once: the hosted robots share what they hear)."""
+        return self.hearing.malformed()
 
     @property
     def ready(self) -> bool:
-        """Every hosted robot has heard every robot."""
-        return all(logic.ready for logic in self.logics.values())
+        """Every hosted robot has heard every robot (they hear the same)."""
+        return self._first.ready
 
     # --- commands --------------------------------------------------------------------------
+    def _poll_set(self, wall: float) -> List[int]:
+        """The robots whose lockstep command may have become due since the last poll: those a
+        message concerned, or, when a step's states may be complete or a timeout may have
+        passed, every robot with a pending step. (Polling the others would return None.)"""
+        if self._poll_all or wall >= self._deadline:
+            self._poll_all, self._full = False, True
+            chosen = self._active
+        else:
+            chosen = self._touched & self._active
+        self._touched = set()
+        return sorted(chosen)
+
     def lockstep_poll(self, wall: float) -> List[Tuple[int, Command]]:
         """``(robot, command)`` of every hosted robot whose lockstep command is due now (see the
         module doc on batching); call after every ``receive`` and now and then (a timer)."""
         out: List[Tuple[int, Command]] = []
-        for rid, logic in self.logics.items():
+        again = []
+        self._full = False
+        for rid in self._poll_set(wall):
             if rid in self._held:
                 continue
+            logic = self.logics[rid]
             item = logic.lockstep_next(wall)
             if isinstance(item, Request):
                 if not self._held:
                     self._held_since = wall
+                    self._deadline = min(self._deadline, wall + self.hold_s)
                 self._held[rid] = item
+                self._most_left_out = max(self._most_left_out, len(logic.left_out))  # it may have given up on some
             elif item is not None:
-                out.append((rid, item))  # a re-sent command
+                out.append((rid, item))  # a re-sent command; a pending step may follow
+                again.append(rid)
+            if logic.waiting_since is None:
+                self._active.discard(rid)
+        self._touched.update(again)
         if self._held and (len(self._held) == len(self.logics) or wall - self._held_since >= self.hold_s):
             held, self._held = self._held, {}
             out += self._run(held)
+        if self._full:  # the next timeout, exactly (in between, an earlier one only polls everyone once more)
+            since = [self.logics[rid].waiting_since for rid in self._active]
+            self._deadline = min([t + self.state_timeout for t in since if t is not None]
+                                 + ([self._held_since + self.hold_s] if self._held else []), default=float('inf'))
         return sorted(out, key=lambda item: item[0])
 
     def tick(self, now_ns: Optional[int]) -> List[Tuple[int, Command]]:
@@ -161,13 +218,18 @@ class HostedAgents:
             elif item is not None:
                 out.append((rid, item))
         if requests:
-            for (rid, request), u in zip(requests, self.evaluate([r for _, r in requests], [rid for rid, _ in requests])):
-                out.append((rid, self.logics[rid].finish(request, u)))
+            U = self.evaluate([r for _, r in requests], [rid for rid, _ in requests])
+            values, non_finite, clipped = clean_commands(U, self._first.limit)  # the hosted robots share the limit
+            for n, (rid, request) in enumerate(requests):
+                out.append((rid, self.logics[rid].commit(request, values[n], bool(non_finite[n]), bool(clipped[n]),
+                                                         U[n])))
             out.sort(key=lambda item: item[0])
         return out
 
     def evaluate(self, requests: Sequence[Request], robots: Sequence[int]) -> np.ndarray:
-        """One policy call for the requests of ``robots``: commands ``[len(requests), m]``."""
+        """Y_i of every request (one builder call per shared snapshot) and one policy call for
+        all: commands ``[len(requests), m]``."""
+        self._first.build(requests)
         Y = np.stack([r.Y for r in requests])
         mask = np.stack([r.mask for r in requests])
         self.calls += 1

@@ -194,6 +194,11 @@ def plan_run(args: argparse.Namespace) -> Plan:
             raise ConfigError('--managed runs one lifecycle agent process per robot; it cannot be combined with '
                               f'--agents-per-process {args.agents_per_process}')
         per_process = 1
+    if link and not args.ground_truth:  # each agent hears through its own link: no hosting (nodes/agents.py)
+        if args.agents_per_process > 1:
+            raise ConfigError('--link-* (the link model) runs one agent process per robot; it cannot be combined '
+                              f'with --agents-per-process {args.agents_per_process}')
+        per_process = 1
     robot_params = robot_model.robot_model_parameters(args, scenario, per_process)
     hosting.check_netns(args.netns)
     if not args.ground_truth:
