@@ -97,6 +97,9 @@ class Trainer:
         if not paths:
             raise DataError("no data file given")
         self.data_paths = paths
+        # the code that trains is the code at the start (a tree edited during a run must not
+        # change what the policy says it came from)
+        self.code = code_provenance()
         # Several files may hold swarms of different sizes (issue 13): the neighbour matrix has
         # k rows whatever n is, so their samples train one size-agnostic policy (training.datasets).
         pc, nc = cfg["policy"], cfg["noise"]
@@ -400,7 +403,7 @@ class Trainer:
             chosen = f"best rollout score (epoch {self.best['epoch']})"
         meta = self.policy.metadata(dt=self.dt)
         meta["provenance"] = {
-            "trainer": "training.train", "config": self.cfg, **self._data_provenance(), **code_provenance(),
+            "trainer": "training.train", "config": self.cfg, **self._data_provenance(), **self.code,
             "data_dt": self.data_dt, "dt_ratio": self.ratio,
             "epochs": self.epoch, "selected": chosen, "train_seconds": round(self.elapsed, 1),
             "torch": torch.__version__}
