@@ -82,7 +82,11 @@ def _lr_lambda(cfg: Dict[str, Any]):
 
 
 class Trainer:
-    """All training state; :meth:`run` trains to the configured epoch count."""
+    """All training state; :meth:`run` trains to the configured epoch count.
+
+    ``data_path``: one trajectory file, or a list of files (swarms of different sizes, same
+    scenario and dt) whose samples are pooled; selection rolls out each file's validation swarms.
+    """
 
     def __init__(self, cfg: Dict[str, Any], data_path, out_dir: str, resume: bool = False,
                  progress: bool = True, log=print):
