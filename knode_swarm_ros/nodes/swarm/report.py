@@ -117,6 +117,15 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
     _draw_trajectories(axes[0], states, scenario, 'trajectories' if truth is None else 'learnt swarm')
     if truth is not None:
         _draw_trajectories(axes[1], truth, scenario, 'ground truth, same start')
+        both = np.concatenate([states[..., :2].reshape(-1, 2), truth[..., :2].reshape(-1, 2)])
+        both = both[np.all(np.isfinite(both), axis=1)]
+        if len(both):                   # one scale for both swarms, so that they compare by eye
+            lo, hi = both.min(axis=0), both.max(axis=0)
+            pad = 0.05 * max(float((hi - lo).max()), 1e-6)
+            for ax in axes[:2]:
+                ax.set_aspect('equal', adjustable='box')
+                ax.set_xlim(lo[0] - pad, hi[0] + pad)
+                ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax_avd, ax_amd = axes[-2], axes[-1]
     for ax, col, name in ((ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference'),
                           (ax_amd, 1, 'amd: nearest-neighbour distance')):
