@@ -8,7 +8,6 @@ import torch
 import yaml
 
 from knode_swarm_ros.core import load_policy, load_runtime, save_trajectories, shipped_policy_path
-from training.config import normalise_config
 from training.provenance import main as provenance_main
 from training.records import data_reference
 from training.samples import make_samples
