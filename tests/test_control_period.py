@@ -279,3 +279,25 @@ def test_realtime_defaults_pick_the_policy_of_the_rate(tmp_path):
     agent = swarm.node_commands(plan)['agent_0']
     params = yaml.safe_load(open(agent[agent.index('--params-file') + 1]))['/**']['ros__parameters']
     assert params['control_rate'] == 50.0 and params['rate_check'] == 'refuse'
+
+
+def test_phases_and_multi_step_windows_step_at_the_policy_dt(tmp_path):
+    from training.config import normalise_config
+    from training.period import phases
+    from training.trainer import Trainer
+    states = np.arange(2 * 7, dtype=float).reshape(2, 7, 1, 1)
+    np.testing.assert_array_equal(phases(states, 3)[..., 0, 0], [[0, 3], [7, 10], [1, 4], [8, 11], [2, 5], [9, 12]])
+    assert phases(states, 1) is states
+    data, _ = _held_teacher_data(tmp_path, steps=8)       # 41 frames at 0.01 s, 4 train trajectories
+    raw = {'scenario': 'flock2d', 'seed': 3, 'policy': {'hidden': 8, 'd_cr': 3.0, 'k': 4},
+           'data': {'val_trajectories': 1, 'policy_dt': 0.05}, 'training': {'objective': 'multi_step', 'threads': 1},
+           'multistep': {'horizons': [3], 'epochs': [1], 'windows_per_epoch': 4, 'batch_windows': 2},
+           'selection': {'every': 0}}
+    trainer = Trainer(normalise_config(raw), data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
+    assert trainer.multi.dt == 0.05
+    np.testing.assert_array_equal(trainer.multi.windows.states.numpy(),
+                                  phases(trainer.split['train'], 5).astype(np.float32))
+    assert trainer.multi.windows.states.shape[:2] == (3 * 5, 8)
+    trainer.run()
+    from knode_swarm_ros.core import load_policy
+    assert load_policy(tmp_path / 'run' / 'policy.pt').dt == 0.05

@@ -213,6 +213,7 @@ def _raw(**training):
     ({"multistep": {"horizons": [0, 5]}}, "multistep.horizons"),
     ({"multistep": {"units": "furlongs"}}, "multistep.units"),
     ({"multistep": {"checkpoint": -1}}, "multistep.checkpoint"),
+    ({"multistep": {"velocity_weight": 0}}, "multistep.velocity_weight"),
 ])
 def test_bad_multistep_config_names_the_field(change, field):
     raw = _raw()
@@ -287,3 +288,13 @@ def test_windows_never_hold_a_bad_step():
     assert {tuple(x) for x in drawn.tolist()} <= clean
     with pytest.raises(ValueError, match="no window of 11 steps"):
         w.starts(1, 11, None)
+
+
+def test_velocity_weight_scales_only_the_velocity_errors():
+    one, four = window_scales(FLOCK, 0.05, 4, "command"), window_scales(FLOCK, 0.05, 4, "command", velocity_weight=4.0)
+    torch.testing.assert_close(four[:, :2], one[:, :2])
+    torch.testing.assert_close(four[:, 2:], one[:, 2:] / 2)       # squared error x 4
+    torch.testing.assert_close(window_scales(FLOCK, 0.05, 2, "state", velocity_weight=4.0),
+                               torch.tensor([[1.0, 1.0, 0.5, 0.5]] * 2))
+    boids = get_scenario("boids3d")                                # velocity commands: no velocity entries
+    torch.testing.assert_close(window_scales(boids, 0.1, 2, "command", 1.0, 9.0), window_scales(boids, 0.1, 2, "command"))

@@ -31,7 +31,7 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
                  "max_minutes": None, "objective": "one_step"},
     # the multi_step objective (training/multistep.py): curriculum of horizons, from a one-step model
     "multistep": {"init": None, "horizons": [10, 50, 200], "epochs": [2, 2, 2], "windows_per_epoch": 256,
-                  "batch_windows": 16, "units": "command", "checkpoint": 0},
+                  "batch_windows": 16, "units": "command", "checkpoint": 0, "velocity_weight": 1.0},
     "selection": {"every": 5, "trajectories": 4, "steps": None},
     "augment": {"rotate": False, "velocity_boost": 0.0},
 }
@@ -160,6 +160,9 @@ def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
     for key in ("windows_per_epoch", "batch_windows"):
         _check(pos_int(m[key]), f"multistep.{key}", m[key], "must be an integer >= 1")
     _check(m["units"] in LOSS_UNITS, "multistep.units", m["units"], f"must be one of {', '.join(LOSS_UNITS)}")
+    vw = m["velocity_weight"]
+    _check(isinstance(vw, (int, float)) and not isinstance(vw, bool) and math.isfinite(vw) and vw > 0,
+           "multistep.velocity_weight", vw, "must be a number > 0 (1: position and velocity weigh alike)")
     _check(isinstance(m["checkpoint"], int) and m["checkpoint"] >= 0, "multistep.checkpoint", m["checkpoint"],
            "must be an integer >= 0 (0: no activation checkpointing)")
     if t["objective"] == "multi_step":

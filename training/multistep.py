@@ -104,21 +104,25 @@ def horizon_at(epoch: int, horizons: List[int], epochs: List[int]) -> int:
     return horizons[-1]
 
 
-def window_scales(spec: Scenario, dt: float, H: int, units: str, heading_weight: float = 1.0) -> Tensor:
+def window_scales(spec: Scenario, dt: float, H: int, units: str, heading_weight: float = 1.0,
+                  velocity_weight: float = 1.0) -> Tensor:
     """Per-frame, per-entry divisors ``[H, d]`` of the window error.
 
     ``command``: the error at frame h expressed as the constant command error that would cause
     it under the zero-order hold (acceleration: position / ((h dt)^2 / 2), velocity / (h dt);
     velocity command: position / (h dt), heading by 1 / sqrt(heading_weight)), so every frame
     of the window weighs in the same units as the one-step loss (H = 1 is that loss exactly).
-    ``state``: plain state errors.
+    ``state``: plain state errors. ``velocity_weight`` (acceleration scenarios) multiplies the
+    squared velocity errors: avd, the flocking measure, is a velocity spread, and a jitter of
+    the commands shows in the velocities before it moves the positions.
     """
     p, d = spec.position_dim, spec.state_dim
+    vw = 1.0 / math.sqrt(velocity_weight) if spec.command == "acceleration" else 1.0
     if units == "state":
-        return torch.ones(H, d)
+        return torch.cat([torch.ones(H, p), torch.full((H, d - p), vw)], dim=1)
     h = torch.arange(1, H + 1, dtype=torch.float32)[:, None] * dt               # [H, 1]
     if spec.command == "acceleration":
-        return torch.cat([(0.5 * h * h).expand(H, p), h.expand(H, d - p)], dim=1)
+        return torch.cat([(0.5 * h * h).expand(H, p), (h * vw).expand(H, d - p)], dim=1)
     hw = 1.0 / math.sqrt(heading_weight) if heading_weight > 0 else float("inf")
     return torch.cat([h.expand(H, p), torch.full((H, d - p), hw)], dim=1)
 
@@ -237,5 +241,6 @@ class MultiStepObjective:
             obs, history = augment_windows(obs, history, self.dt, ac["rotate"], ac["velocity_boost"], g)
         pred = rollout_windows(policy, self.spec, self.cfg["policy"], self.dt, obs, history, self.mc["checkpoint"])
         tc = self.cfg["training"]
-        scales = window_scales(self.spec, self.dt, obs.shape[1] - 1, self.mc["units"], tc["heading_weight"])
+        scales = window_scales(self.spec, self.dt, obs.shape[1] - 1, self.mc["units"], tc["heading_weight"],
+                               self.mc["velocity_weight"])
         return window_loss(pred, obs, scales)

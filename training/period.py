@@ -13,7 +13,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["period_ratio", "policy_dt", "subsample", "RATIO_TOLERANCE"]
+__all__ = ["period_ratio", "policy_dt", "subsample", "phases", "RATIO_TOLERANCE"]
 
 #: Relative tolerance for "policy dt is a whole multiple of the data dt" (float seconds).
 RATIO_TOLERANCE = 1e-6
@@ -48,3 +48,16 @@ def subsample(states: np.ndarray, ratio: int) -> np.ndarray:
     """Every ratio-th frame of trajectories ``[N, T, n, d]`` -> ``[N, ceil(T / ratio), n, d]``
     (frame 0 kept): the data as a robot controlled at the policy's period observes it."""
     return np.asarray(states)[:, ::int(ratio)]
+
+
+def phases(states: np.ndarray, ratio: int) -> np.ndarray:
+    """Every phase of the subsampling as its own trajectory: ``[N, T, n, d]`` ->
+    ``[N * ratio, T // ratio, n, d]`` (phase p holds frames p, p + ratio, ...; cut to the
+    shortest phase), the trajectories a robot controlled at the policy's period could observe.
+    Used by the multi-step objective, whose windows step at the policy's dt."""
+    states = np.asarray(states)
+    r = int(ratio)
+    if r == 1:
+        return states
+    T = states.shape[1] // r
+    return np.concatenate([states[:, p::r][:, :T] for p in range(r)], axis=0)

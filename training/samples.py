@@ -40,6 +40,14 @@ class Samples:
         return Samples(self.Y[keep], self.mask[keep], self.target[keep], self.clean_own[keep])
 
 
+def concat_samples(parts: "list[Samples]") -> Samples:
+    """One sample set from several (e.g. files with swarms of different sizes: every sample is one
+    robot's k-row neighbour matrix, whatever n its swarm had)."""
+    if len(parts) == 1:
+        return parts[0]
+    return Samples(*(torch.cat([getattr(p, f) for p in parts]) for f in ("Y", "mask", "target", "clean_own")))
+
+
 def implied_command(own: Tensor, target: Tensor, spec: Scenario, dt: float) -> Tensor:
     """The command ``[M, m]`` that a zero-order hold needs to go from ``own`` to ``target``
     (acceleration: velocity change / dt; velocity: displacement / dt)."""

@@ -24,10 +24,10 @@ from knode_swarm_ros.core.trajectory import atomic_write
 
 from .config import ConfigError, build_policy
 from .objectives import loss_scales, one_step_loss, predict_next
-from .records import git_commit, write_json
-from .samples import Samples, augment_batch, implied_command, make_samples
+from .records import code_provenance, data_reference, write_json
+from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples
 from .scores import final_metrics, rollout_module, selection_score
-from .period import period_ratio, policy_dt, subsample
+from .period import period_ratio, phases, policy_dt, subsample
 
 
 class DivergenceError(RunError, RuntimeError):
@@ -82,9 +82,13 @@ def _lr_lambda(cfg: Dict[str, Any]):
 
 
 class Trainer:
-    """All training state; :meth:`run` trains to the configured epoch count."""
+    """All training state; :meth:`run` trains to the configured epoch count.
 
-    def __init__(self, cfg: Dict[str, Any], data_path: str, out_dir: str, resume: bool = False,
+    ``data_path``: one trajectory file, or a list of files (swarms of different sizes, same
+    scenario and dt) whose samples are pooled; selection rolls out each file's validation swarms.
+    """
+
+    def __init__(self, cfg: Dict[str, Any], data_path, out_dir: str, resume: bool = False,
                  progress: bool = True, log=print):
         self.cfg = cfg
         self.data_path = data_path
@@ -93,33 +97,37 @@ class Trainer:
         self.log = log
         self.spec = get_scenario(cfg["scenario"])
         torch.set_num_threads(cfg["training"]["threads"])
-        data = load_trajectories(data_path)
-        if data.scenario != cfg["scenario"]:
-            raise DataError(f"{data_path}: field 'scenario' is {data.scenario!r} but the config trains "
-                            f"{cfg['scenario']!r}")
-        if data.states.shape[2] < 2:
-            raise DataError(f"{data_path}: field 'states' holds {data.states.shape[2]} robot(s); need >= 2")
-        # The policy's dt: the data's, or a whole multiple of it (data.policy_dt, training.period).
-        self.data_dt = float(data.dt)
-        try:
-            self.ratio = period_ratio(self.data_dt, cfg["data"]["policy_dt"])
-        except ValueError as exc:
-            raise DataError(f"{data_path}: config field {exc}") from None
-        self.dt = policy_dt(self.data_dt, self.ratio)
-        self.split = split_data(cfg, data)
-        if self.split["train"].shape[1] <= self.ratio:
-            raise DataError(f"{data_path}: trajectories of {self.split['train'].shape[1]} frames are too short for "
-                            f"a policy step of {self.ratio} frames (data.policy_dt = {self.dt:g} s)")
+        paths = [data_path] if isinstance(data_path, (str, os.PathLike)) else list(data_path)
+        if not paths:
+            raise DataError("no data file given")
+        self.data_paths = paths
+        # the code that trains is the code at the start (a tree edited during a run must not
+        # change what the policy says it came from)
+        self.code = code_provenance()
+        # Several files may hold swarms of different sizes (issue 13): the neighbour matrix has
+        # k rows whatever n is, so their samples train one size-agnostic policy (training.datasets).
         pc, nc = cfg["policy"], cfg["noise"]
         std = math.sqrt(nc["variance"])
         obs_std = std if nc["mode"] == "observations" else 0.0
         self.input_std = std if nc["mode"] == "inputs" else 0.0
         rng = np.random.default_rng(cfg["seed"])
         t0 = time.perf_counter()
-        self.train = make_samples(self.split["train"], self.spec, pc["d_cr"], pc["k"], pc["tau"],
-                                  cfg["data"]["stride"], obs_std, rng, ratio=self.ratio)
-        self.val = (make_samples(self.split["val"], self.spec, pc["d_cr"], pc["k"], pc["tau"], 1, ratio=self.ratio)
-                    if len(self.split["val"]) else None)
+        self.splits, train_parts, val_parts = [], [], []
+        for path in paths:
+            data = self._load(path)
+            split = split_data(cfg, data)
+            if split["train"].shape[1] <= self.ratio:
+                raise DataError(f"{path}: trajectories of {split['train'].shape[1]} frames are too short for "
+                                f"a policy step of {self.ratio} frames (data.policy_dt = {self.dt:g} s)")
+            self.splits.append(split)
+            train_parts.append(make_samples(split["train"], self.spec, pc["d_cr"], pc["k"], pc["tau"],
+                                            cfg["data"]["stride"], obs_std, rng, ratio=self.ratio))
+            if len(split["val"]):
+                val_parts.append(make_samples(split["val"], self.spec, pc["d_cr"], pc["k"], pc["tau"], 1,
+                                              ratio=self.ratio))
+        self.split = self.splits[0]
+        self.train = concat_samples(train_parts)
+        self.val = concat_samples(val_parts) if val_parts else None
         self.dropped = 0
         if cfg["data"]["drop_saturated"]:
             # Samples whose implied command exceeds the policy's saturation cannot be reproduced
@@ -133,15 +141,19 @@ class Trainer:
                     <= pc["command_limit"]
                 self.val = self.val.subset(keep)
         if len(self.train) == 0:
-            raise DataError(f"{data_path}: no training samples left (data.drop_saturated removed all)")
+            raise DataError(f"{', '.join(paths)}: no training samples left (data.drop_saturated removed all)")
         self.prep_s = time.perf_counter() - t0
         self.scales = loss_scales(self.spec, self.dt, cfg["training"]["loss_units"], cfg["training"]["heading_weight"])
         torch.manual_seed(cfg["seed"])
         self.policy = build_policy(cfg)
         self.multi = None
         if cfg["training"]["objective"] == "multi_step":
+            if len(self.splits) > 1:
+                raise ConfigError("training.objective = 'multi_step' takes one --data file (windows roll out "
+                                  "one swarm); mixed sizes train with 'one_step'")
             from .multistep import MultiStepObjective, load_init_state
-            self.multi = MultiStepObjective(cfg, self.spec, self.dt, self.split["train"])
+            # windows step at the policy's dt: every phase of the subsampled data is a trajectory
+            self.multi = MultiStepObjective(cfg, self.spec, self.dt, phases(self.split["train"], self.ratio))
             if cfg["multistep"]["init"] is not None:
                 try:
                     self.policy.load_state_dict(load_init_state(cfg["multistep"]["init"]))
@@ -163,6 +175,28 @@ class Trainer:
         if resume:
             self._resume()
             self._write_config()
+
+    def _load(self, path: str):
+        """One data file, checked against the config and the files before it (scenario, dt)."""
+        data = load_trajectories(path)
+        if data.scenario != self.cfg["scenario"]:
+            raise DataError(f"{path}: field 'scenario' is {data.scenario!r} but the config trains "
+                            f"{self.cfg['scenario']!r}")
+        if data.states.shape[2] < 2:
+            raise DataError(f"{path}: field 'states' holds {data.states.shape[2]} robot(s); need >= 2")
+        if hasattr(self, "data_dt"):
+            if abs(float(data.dt) - self.data_dt) > 1e-9 * self.data_dt:
+                raise DataError(f"{path}: field 'dt' is {float(data.dt):g} s but {self.data_paths[0]} has "
+                                f"{self.data_dt:g} s; every --data file must share one dt")
+            return data
+        # The policy's dt: the data's, or a whole multiple of it (data.policy_dt, training.period).
+        self.data_dt = float(data.dt)
+        try:
+            self.ratio = period_ratio(self.data_dt, self.cfg["data"]["policy_dt"])
+        except ValueError as exc:
+            raise DataError(f"{path}: config field {exc}") from None
+        self.dt = policy_dt(self.data_dt, self.ratio)
+        return data
 
     def _claim_out(self) -> None:
         if self._claimed:
@@ -246,17 +280,23 @@ class Trainer:
     def select_metrics(self) -> Optional[Dict[str, Any]]:
         """Roll the current module out from the validation trajectories' first frames."""
         sc = self.cfg["selection"]
-        if sc["every"] == 0 or len(self.split["val"]) == 0:
+        if sc["every"] == 0 or all(len(sp["val"]) == 0 for sp in self.splits):
             return None
-        truth = subsample(self.split["val"][: sc["trajectories"]], self.ratio)   # frames at the policy's dt
-        steps = truth.shape[1] - 1 if sc["steps"] is None else min(sc["steps"], truth.shape[1] - 1)
-        truth = truth[:, : steps + 1]
         self.policy.eval()
-        pred = rollout_module(self.policy, self.spec, truth[:, 0], steps, self.cfg["policy"], self.dt)
+        m: Dict[str, Any] = {}
+        for split in self.splits:                # one batch of rollouts per file (its swarm size)
+            if len(split["val"]) == 0:
+                continue
+            truth = subsample(split["val"][: sc["trajectories"]], self.ratio)   # frames at the policy's dt
+            steps = truth.shape[1] - 1 if sc["steps"] is None else min(sc["steps"], truth.shape[1] - 1)
+            truth = truth[:, : steps + 1]
+            pred = rollout_module(self.policy, self.spec, truth[:, 0], steps, self.cfg["policy"], self.dt)
+            if not np.all(np.isfinite(pred)):
+                self.policy.train()
+                return {"score": float("inf")}
+            for key, values in final_metrics(self.spec, pred, truth, dt=self.dt).items():
+                m.setdefault(key, []).extend(values)
         self.policy.train()
-        if not np.all(np.isfinite(pred)):
-            return {"score": float("inf")}
-        m = final_metrics(self.spec, pred, truth, dt=self.dt)
         out = {"score": selection_score(self.spec, m)}
         for key in ("avd_final", "amd_final", "truth_amd_final", "truth_avd_final", "pod_kld", "min_distance"):
             if key in m:
@@ -348,6 +388,17 @@ class Trainer:
         self.log(f"wrote {twin}: max difference to TorchScript {max(errors.values()):.2e}")
         return {"path": str(twin), "max_difference": max(errors.values())}
 
+    def _data_provenance(self) -> Dict[str, Any]:
+        """Data files (repository-relative) and trajectory indices; lists when several files."""
+        out = {"data": [data_reference(p) for p in self.data_paths],
+               "data_file": [os.path.basename(p) for p in self.data_paths],
+               "train_trajectories": [sp["train_idx"].tolist() for sp in self.splits],
+               "val_trajectories": [sp["val_idx"].tolist() for sp in self.splits]}
+        if len(self.data_paths) == 1:
+            return {k: v[0] for k, v in out.items()}
+        out["robots"] = [int(sp["train"].shape[2]) for sp in self.splits]
+        return out
+
     def finish(self) -> Dict[str, Any]:
         final_state = copy.deepcopy(self.policy.state_dict())
         chosen = "last"
@@ -356,9 +407,7 @@ class Trainer:
             chosen = f"best rollout score (epoch {self.best['epoch']})"
         meta = self.policy.metadata(dt=self.dt)
         meta["provenance"] = {
-            "trainer": "training.train", "config": self.cfg, "data": os.path.abspath(self.data_path),
-            "data_file": os.path.basename(self.data_path), "git_commit": git_commit(os.path.dirname(os.path.abspath(__file__))),
-            "train_trajectories": self.split["train_idx"].tolist(), "val_trajectories": self.split["val_idx"].tolist(),
+            "trainer": "training.train", "config": self.cfg, **self._data_provenance(), **self.code,
             "data_dt": self.data_dt, "dt_ratio": self.ratio,
             "epochs": self.epoch, "selected": chosen, "train_seconds": round(self.elapsed, 1),
             "torch": torch.__version__}

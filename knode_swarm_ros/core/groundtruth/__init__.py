@@ -20,7 +20,7 @@ from . import boids, tanner
 from .boids import DISCARD_FRAMES, PRESETS as BOIDS_PRESETS, BoidsParams, BoidsSwarm
 from .tanner import VARIANTS as TANNER_VARIANTS, TannerSwarm
 
-__all__ = ["simulate", "parameters", "presets", "default_preset", "TannerSwarm", "BoidsSwarm",
+__all__ = ["simulate", "follow", "parameters", "presets", "default_preset", "TannerSwarm", "BoidsSwarm",
            "BoidsParams", "DISCARD_FRAMES", "tanner", "boids"]
 
 
@@ -127,4 +127,33 @@ def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: in
         for t in range(1, steps):
             out[:, t] = swarm.step()
             bar.update()
+    return out
+
+
+def follow(scenario: str, z0: np.ndarray, frames: int, dt: float, preset: str = "paper") -> np.ndarray:
+    """The ground-truth swarm from a given start ``z0 [n, d]``: ``[frames, n, d]`` sampled every
+    ``dt`` (frame 0 = ``z0``), e.g. beside a recorded run of a learnt policy from the same start.
+
+    flock2d only (boids3d observations keep the heading, not the speed, so a start cannot be
+    completed). The Tanner law is integrated at its own step (0.01 s) when ``dt`` is a whole
+    multiple of it, else at ``dt``. Raises ValueError for boids3d or a bad argument.
+    """
+    get_scenario(scenario)
+    if scenario != "flock2d":
+        raise ValueError(f"no ground truth can follow a {scenario} start (observations hold no speed)")
+    _check_preset(scenario, preset)
+    z0 = np.asarray(z0, dtype=np.float64)
+    if z0.ndim != 2 or z0.shape[-1] != 4 or not np.all(np.isfinite(z0)):
+        raise ValueError(f"z0 must be a finite [n, 4] flock2d state, got shape {z0.shape}")
+    if int(frames) != frames or frames < 1 or not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"frames must be a positive integer and dt > 0, got {frames!r}, {dt!r}")
+    ratio = float(dt) / tanner.DT
+    sub = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1 else 1
+    swarm = TannerSwarm(z0[None], preset, dt=tanner.DT if sub > 1 or abs(ratio - 1) < 1e-6 else float(dt))
+    out = np.empty((int(frames),) + z0.shape)
+    out[0] = z0
+    for t in range(1, int(frames)):
+        for _ in range(sub):
+            frame = swarm.step()
+        out[t] = frame[0]
     return out

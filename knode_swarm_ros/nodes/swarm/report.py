@@ -1,4 +1,9 @@
-"""The launcher's closing summary: the recording's metrics, the simulator's figures and a PNG."""
+"""The launcher's closing summary: the recording's metrics, the simulator's figures and a PNG.
+
+For a flock2d run of a learnt policy the ground-truth swarm from the recording's first frame
+(:func:`knode_swarm_ros.core.groundtruth.follow`) is summarised and drawn beside it, so that
+one sees at a glance how close the learnt swarm comes to the one it learnt from (issue 13).
+"""
 from __future__ import annotations
 
 import json
@@ -48,14 +53,56 @@ def summarise(plan) -> Optional[Dict]:
             _say(f'simulator: {sim.get("steps_run")} steps in {sim.get("run_s", 0):.2f} s '
                  f'({sim["steps_per_s"]:.1f} steps/s) after {sim.get("startup_s", 0):.1f} s of startup{extra}')
         info['simulator'] = sim
+    truth, truth_metrics = _ground_truth(plan, states, data, swarm_metrics)
+    if truth is not None:
+        tl = truth_metrics[-tail:].mean(axis=0)
+        info['ground_truth'] = {'variant': _variant(plan), 'avd_end': float(truth_metrics[-1, 0]),
+                                'amd_end': float(truth_metrics[-1, 1]), 'avd_last10pct': float(tl[0]),
+                                'amd_last10pct': float(tl[1])}
+        _say(f'ground truth from the same start ({_variant(plan)} Tanner law): avd {tl[0]:.4f}, amd {tl[1]:.4f} '
+             f'(mean of the last 10%; the learnt swarm: avd {last[0]:.4f}, amd {last[1]:.4f})')
     if plan.figure is not None:
         write_figure(plan.figure, states, data.dt, data.scenario, metrics,
-                     f'{data.scenario}, {states.shape[1]} robots, {plan.mode}')
+                     f'{data.scenario}, {states.shape[1]} robots, {plan.mode}', truth, truth_metrics)
     return info
 
 
-def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: str) -> bool:
-    """Trajectories and avd/amd over time as a PNG (matplotlib is imported only here)."""
+def _variant(plan) -> str:
+    return getattr(plan, 'variant', None) or 'paper'
+
+
+def _ground_truth(plan, states, data, swarm_metrics):
+    """The ground-truth swarm ``[T, n, d]`` from the recording's first frame and its (avd, amd)
+    per frame, or (None, None): boids3d, a run that is itself the ground truth, a bad start."""
+    import numpy as np
+    from ...core.groundtruth import follow
+    if data.scenario != 'flock2d' or getattr(plan, 'ground_truth', False):
+        return None, None
+    try:
+        truth = follow('flock2d', states[0], states.shape[0], float(data.dt), _variant(plan))
+    except ValueError as exc:
+        _say(f'no ground truth beside the run: {exc}')
+        return None, None
+    return truth, np.array([swarm_metrics(f, data.scenario) for f in truth])
+
+
+def _draw_trajectories(ax, states, scenario: str, title: str) -> None:
+    for i in range(states.shape[1]):
+        ax.plot(states[:, i, 0], states[:, i, 1], lw=0.8)
+    ax.scatter(states[0, :, 0], states[0, :, 1], c='k', s=10, marker='o', label='start')
+    ax.scatter(states[-1, :, 0], states[-1, :, 1], c='r', s=14, marker='x', label='end')
+    ax.set_xlabel('x')
+    ax.set_ylabel('y')
+    ax.set_aspect('equal', adjustable='datalim')
+    ax.legend(loc='best', fontsize=8)
+    ax.set_title(title + (' (x-y projection)' if scenario == 'boids3d' else ''))
+
+
+def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: str,
+                 truth=None, truth_metrics=None) -> bool:
+    """Trajectories and avd/amd over time as a PNG (matplotlib is imported only here); with
+    ``truth [T, n, d]`` and its ``truth_metrics [T, 2]`` the ground-truth swarm from the same
+    start gets its own trajectory panel and its curves beside the run's."""
     try:
         import matplotlib
         matplotlib.use('Agg')
@@ -65,23 +112,31 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
         return False
     import numpy as np
     t = np.arange(states.shape[0]) * dt
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-    ax = axes[0]
-    for i in range(states.shape[1]):
-        ax.plot(states[:, i, 0], states[:, i, 1], lw=0.8)
-    ax.scatter(states[0, :, 0], states[0, :, 1], c='k', s=10, marker='o', label='start')
-    ax.scatter(states[-1, :, 0], states[-1, :, 1], c='r', s=14, marker='x', label='end')
-    ax.set_xlabel('x')
-    ax.set_ylabel('y')
-    ax.set_aspect('equal', adjustable='datalim')
-    ax.legend(loc='best', fontsize=8)
-    ax.set_title('trajectories' + (' (x-y projection)' if scenario == 'boids3d' else ''))
-    axes[1].plot(t, metrics[:, 0])
-    axes[1].set_xlabel('t [s]')
-    axes[1].set_title('avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference')
-    axes[2].plot(t, metrics[:, 1])
-    axes[2].set_xlabel('t [s]')
-    axes[2].set_title('amd: nearest-neighbour distance')
+    panels = 3 if truth is None else 4
+    fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 4.5))
+    _draw_trajectories(axes[0], states, scenario, 'trajectories' if truth is None else 'learnt swarm')
+    if truth is not None:
+        _draw_trajectories(axes[1], truth, scenario, 'ground truth, same start')
+        both = np.concatenate([states[..., :2].reshape(-1, 2), truth[..., :2].reshape(-1, 2)])
+        both = both[np.all(np.isfinite(both), axis=1)]
+        if len(both):                   # one scale for both swarms, so that they compare by eye
+            lo, hi = both.min(axis=0), both.max(axis=0)
+            pad = 0.05 * max(float((hi - lo).max()), 1e-6)
+            for ax in axes[:2]:
+                ax.set_aspect('equal', adjustable='box')
+                ax.set_xlim(lo[0] - pad, hi[0] + pad)
+                ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax_avd, ax_amd = axes[-2], axes[-1]
+    for ax, col, name in ((ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference'),
+                          (ax_amd, 1, 'amd: nearest-neighbour distance')):
+        ax.plot(t, metrics[:, col], label='learnt' if truth is not None else None)
+        if truth is not None:
+            ax.plot(np.arange(truth.shape[0]) * dt, truth_metrics[:, col], '--', label='ground truth')
+            ax.legend(loc='best', fontsize=8)
+        ax.set_xlabel('t [s]')
+        ax.set_title(name)
+    if truth is not None:
+        ax_avd.set_yscale('log')        # the flocked state is orders of magnitude below the start
     fig.suptitle(title)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
