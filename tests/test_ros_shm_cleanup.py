@@ -101,31 +101,39 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
     assert shm_left_by(held) == [], f'{node} left its ports after {sig.name}'
 
 
-# The node is built with a policy load that never ends by itself (it waits in Python, where a
-# signal is handled): the signal must end the start-up, not wait for it to finish.
-_SLOW_LOAD = '''
+# The node is built with a step that never ends by itself (it waits in Python, where a signal is
+# handled): the policy load, or the last part of rclpy's Node constructor (its type description
+# service), after which rclpy's destroy_node works and before which it stops short of the handle.
+# The signal must end the start-up, not wait for it to finish, and free the half-built node.
+_BLOCKED = """
 import sys, time
+import rclpy.node
 from knode_swarm_ros.nodes import agent, {module}
-def never_ending_load(*args, **kwargs):
-    print('loading the policy', flush=True)
+def never_ending(*args, **kwargs):
+    print('blocked in construction', flush=True)
     time.sleep(3600)
-agent.load_agent_policy = {module}.load_agent_policy = never_ending_load
+if '{step}' == 'policy':
+    agent.load_agent_policy = {module}.load_agent_policy = never_ending
+else:
+    rclpy.node.TypeDescriptionService = never_ending
 sys.argv = ['{module}', '--ros-args', *sys.argv[1:]]
 {module}.main()
-'''
+"""
 
 
-@pytest.mark.parametrize('node,sig', [('agent', signal.SIGINT), ('agent', signal.SIGTERM), ('agents', signal.SIGINT)])
-def test_a_signal_while_the_policy_loads_ends_the_start_up_cleanly(node, sig, tmp_path, untrained_policies,
-                                                                    ros_domain_id):
+@pytest.mark.parametrize('node,step,sig', [('agent', 'policy', signal.SIGINT), ('agent', 'policy', signal.SIGTERM),
+                                           ('agents', 'policy', signal.SIGINT), ('agent', 'rclpy', signal.SIGTERM),
+                                           ('simulator', 'rclpy', signal.SIGINT)])
+def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, sig, tmp_path, untrained_policies,
+                                                                     ros_domain_id):
     argv, _ = _node_argv(node, tmp_path, untrained_policies['flock2d'])
     log_path = tmp_path / f'{node}.log'
     with open(log_path, 'wb') as log:
-        proc = _start(['-c', _SLOW_LOAD.format(module=node), *argv[3:]], log)
-    _wait_for(proc, log_path, 'loading the policy')
+        proc = _start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
+    _wait_for(proc, log_path, 'blocked in construction')
     held = _held_while_running(proc)  # the half-built node already has its DDS participant
     rc = _stop(proc, sig)
     text = log_path.read_text(errors='replace')
     assert rc == 0 and 'Traceback' not in text and 'KeyboardInterrupt' not in text, f'rc {rc}\n{text}'
-    assert '(k=' not in text, text  # the line a built node logs (its policy's k): it never got there
+    assert '(k=' not in text and ': running' not in text, text  # what a built node logs: it never got there
     assert shm_left_by(held) == [], f'{node} left its shared memory\n{text[-2000:]}'
