@@ -160,7 +160,8 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
     anything else prints its traceback and exits with EXIT_FAILURE. ``on_exit(node)`` (reports,
     saving) always runs before the node is destroyed, and is not interrupted by a second Ctrl-C;
     a node whose construction a signal or an error cut short is destroyed without it (its handle
-    holds the DDS participant). The process ends here (:func:`_end_process`): call it only as an executable's ``main()``.
+    holds the DDS participant). The process ends here (:func:`_end_process`): call it only as an
+    executable's ``main()``.
     """
     node: Optional[Node] = None
     half_built: Optional[Node] = None  # a node whose construction was cut short: destroyed, no on_exit
@@ -212,7 +213,7 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
             if half_built is not None:
                 try:
                     destroy_node(half_built)
-                except Exception:  # noqa: BLE001 - cut short before its handle existed: nothing to free
+                except Exception:  # noqa: BLE001 - rclpy's part fails on what was never made; the handle went
                     pass
                 half_built = None
             rclpy.try_shutdown()
