@@ -68,9 +68,9 @@ class _Interrupts:
     Python's own SIGINT handler raises KeyboardInterrupt wherever the main thread happens to be
     (inside rclpy.init, a callback, the recorder's save, the executor's teardown: an exception
     thrown through the EventsExecutor's C++ aborts the process). This handler only records the
-    signal, which stops the start-up at the next step; once the EventsExecutor exists, its own
-    handler takes over (it stops the spin and shuts the context down, which ends
-    :func:`spin_until`).
+    signal; while the node is built it raises :class:`_StartupInterrupted` (the start-up is
+    abandoned, not finished first), and afterwards :func:`spin_until` sees the flag between
+    slices (rclpy's handlers are off, so the EventsExecutor installs none of its own).
     """
 
     def __init__(self):
@@ -79,23 +79,38 @@ class _Interrupts:
         self._old = {}
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig, handler in ((signal.SIGINT, self._note), (signal.SIGTERM, self._note), (signal.SIGALRM, self._retry)):
             try:
-                self._old[sig] = signal.signal(sig, self._note)
+                self._old[sig] = signal.signal(sig, handler)
             except ValueError:  # not the main thread (tests): leave the handlers alone
                 pass
         return self
 
-    def _note(self, signum, _frame) -> None:
+    def _note(self, signum, frame) -> None:
         self.signal = signum
         if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
+            if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
+                # Raised there, it can land in the module lock's weakref callback, which ignores
+                # it ("Exception ignored in ... cb", measured): try again from the next frame.
+                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)
+                return
             self.raising = False
             raise _StartupInterrupted()
 
+    def _retry(self, _signum, frame) -> None:
+        if self.signal is not None:
+            self._note(self.signal, frame)
+
     def __exit__(self, *exc):
+        if signal.SIGALRM in self._old:
+            signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, old in self._old.items():
             signal.signal(sig, old)
         return False
+
+
+_IMPORT_MACHINERY = '<frozen importlib._bootstrap>'
+_RETRY_S = 0.005
 
 
 class _StartupInterrupted(BaseException):
