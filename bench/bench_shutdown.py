@@ -196,13 +196,14 @@ def main(argv=None):
         p50 = times[len(times) // 2] if times else float('nan')
         print(f'{name:9s}: exit 0 {clean}/{len(rows)}, exit 0 within 2 s {fast}/{len(rows)}, '
               f'stops leaving shm segments {left}/{len(rows)}, shm files left after the series '
-              f'{len(series_left)} (of the files it held: {sum(len(r.get("held", ())) for r in rows)} locks in all), stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
+              f'{len(series_left)} (of the files it held: {sum(len(r.get("held", ())) for r in rows)} locks in all), '
+              f'stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
               + (f' (left: {series_left[:6]})' if series_left else ''), flush=True)
         if starts:
             times = sorted(r['stop_s'] for r in starts)
             print(f'{"":9s}  signalled during start-up ({len(starts)}, 0 .. {readies[len(readies) // 2]:.1f} s after '
-                  f'it handles signals): exit 0 {sum(r["rc"] == 0 for r in starts)}, ended by SIGTERM\'s default action before '
-                  f'any handler {sum(r["rc"] == -signal.SIGTERM for r in starts)}, other '
+                  f'it handles signals): exit 0 {sum(r["rc"] == 0 for r in starts)}, ended by SIGTERM\'s default '
+                  f'action before any handler {sum(r["rc"] == -signal.SIGTERM for r in starts)}, other '
                   f'{sum(r["rc"] not in (0, -signal.SIGTERM) for r in starts)}, tracebacks '
                   f'{sum(r["traceback"] for r in starts)}, within 2 s {sum(r["stop_s"] <= 2.0 for r in starts)}, '
                   f'leaving shm segments {sum(bool(r["left"]) for r in starts)}, stop time p50 '

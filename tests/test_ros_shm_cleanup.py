@@ -40,7 +40,8 @@ def _node_argv(node, tmp_path, policy):
             'agents': ['-p', 'ids:=[0,1]', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy}',
                        '-p', 'use_sim_time:=true'],
             'simulator': TRAFFIC,
-            'recorder': ['-p', f'robots:={ROBOTS}', '-p', f"output:={tmp_path / 'rec.npz'}", '-p', 'use_sim_time:=true'],
+            'recorder': ['-p', f'robots:={ROBOTS}', '-p', f"output:={tmp_path / 'rec.npz'}",
+                         '-p', 'use_sim_time:=true'],
             }[node]
     ready = {'simulator': ': running'}.get(node, heard)
     return ['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], ready
