@@ -89,10 +89,8 @@ class _Interrupts:
     def _note(self, signum, frame) -> None:
         self.signal = signum
         if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
-            if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
-                # Raised there, it can land in the module lock's weakref callback, which ignores
-                # it ("Exception ignored in ... cb", measured): try again from the next frame.
-                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)
+            if not _safe_to_raise(frame):
+                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)  # try again from a later frame
                 return
             self.raising = False
             raise _StartupInterrupted()
@@ -111,6 +109,25 @@ class _Interrupts:
 
 _IMPORT_MACHINERY = '<frozen importlib._bootstrap>'
 _RETRY_S = 0.005
+
+
+def _safe_to_raise(frame) -> bool:
+    """Whether an exception raised in ``frame`` unwinds only through Python.
+
+    Not in importlib's bootstrap: there the raise can land in the module lock's weakref
+    callback, which ignores it ("Exception ignored in ... cb", measured). Not below a function
+    of torch: torch calls back into Python from C++ (TorchScript compiles at import), and an
+    exception thrown through that C++ aborted the agent once in 35 stops during start-up
+    (status -6, measured under load). Module-level code (an import) is run by importlib only.
+    """
+    if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
+        return False
+    while frame is not None:
+        code = frame.f_code
+        if '/torch/' in code.co_filename and code.co_name != '<module>':
+            return False
+        frame = frame.f_back
+    return True
 
 
 class _StartupInterrupted(BaseException):
