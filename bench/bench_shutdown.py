@@ -129,7 +129,7 @@ def one_stop(name, args, env, domain, sig, tmp: Path, rng):
     text = log_path.read_text(errors='replace')
     note = text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
     segment = {n for n in held if 'port' not in n}
-    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by(segment), 'held': held, 'note': note,
+    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by(segment, domain), 'held': held, 'note': note,
             'ready_s': ready_s}
 
 
@@ -168,6 +168,7 @@ def main(argv=None):
                 'recorder': ['-p', f'robots:={ROBOTS}', '-p', f'output:={tmp / "rec.npz"}',
                              '-p', 'use_sim_time:=true']}[name]
         rows, starts = [], []
+        series_before = frozenset(shm.shm_snapshot())  # ports that killed processes left earlier
         try:
             for i in range(a.reps):
                 sig = signal.SIGINT if i % 2 == 0 else signal.SIGTERM
@@ -187,7 +188,7 @@ def main(argv=None):
             if traffic is not None:
                 traffic.send_signal(signal.SIGINT)
                 traffic.wait(timeout=30)
-        series_left = shm.shm_left_by(set().union(*(r.get('held', set()) for r in rows)))
+        series_left = shm.shm_left_by(set().union(*(r.get('held', set()) for r in rows)), domain, series_before)
         times = sorted(r['stop_s'] for r in rows if r['stop_s'] is not None)
         results[name] = rows
         clean = sum(r['rc'] == 0 for r in rows)

@@ -17,7 +17,7 @@ import time
 import pytest
 
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
-from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by
+from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot
 
 pytestmark = pytest.mark.ros
 
@@ -86,6 +86,7 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
     try:
         argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
         log_path = tmp_path / f'{node}.log'
+        before = frozenset(shm_snapshot())  # a port a killed process left earlier is not this node's
         with open(log_path, 'wb') as log:
             proc = _start(argv, log)
         _wait_for(proc, log_path, ready)
@@ -99,7 +100,7 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
         if traffic is not None:
             assert _stop(traffic, signal.SIGINT) == 0
     # A port the node listened on is also open in the peers that sent to it: it goes with the last.
-    assert shm_left_by(held) == [], f'{node} left its ports after {sig.name}'
+    assert shm_left_by(held, ros_domain_id, before) == [], f'{node} left its ports after {sig.name}'
 
 
 # The node is built with a step that never ends by itself (it waits in Python, where a signal is
@@ -129,6 +130,7 @@ def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, 
                                                                      ros_domain_id):
     argv, _ = _node_argv(node, tmp_path, untrained_policies['flock2d'])
     log_path = tmp_path / f'{node}.log'
+    before = frozenset(shm_snapshot())
     with open(log_path, 'wb') as log:
         proc = _start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
     _wait_for(proc, log_path, 'blocked in construction')
@@ -137,4 +139,4 @@ def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, 
     text = log_path.read_text(errors='replace')
     assert rc == 0 and 'Traceback' not in text and 'KeyboardInterrupt' not in text, f'rc {rc}\n{text}'
     assert '(k=' not in text and ': running' not in text, text  # what a built node logs: it never got there
-    assert shm_left_by(held) == [], f'{node} left its shared memory\n{text[-2000:]}'
+    assert shm_left_by(held, ros_domain_id, before) == [], f'{node} left its shared memory\n{text[-2000:]}'

@@ -14,7 +14,7 @@ import fcntl
 import os
 import re
 from pathlib import Path
-from typing import List
+from typing import List, Optional
 
 __all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup', 'shm_held_by', 'shm_left_by']
 
@@ -100,14 +100,28 @@ def shm_held_by(pid: int) -> set:
     return names
 
 
-def shm_left_by(held: set) -> List[str]:
+_PORT_RE = re.compile(r'^fastrtps_port(\d+)$')
+
+
+def shm_left_by(held: set, domain: Optional[int] = None, before: frozenset = frozenset()) -> List[str]:
     """Files of the groups whose lock files ``held`` (:func:`shm_held_by`, taken while the owner
     ran) names that are still in /dev/shm after the owner ended, unless a live process holds the
-    group's lock again (a later participant reusing a port)."""
+    group's lock again (a later participant reusing a port).
+
+    A port's segment and mutex stay behind when any process that had opened the port was killed
+    (measured), whoever owns it. With ``domain``, a port outside that domain's range (7400 + 250
+    * domain + 0..249: e.g. ``fastrtps_port7000``, which every domain's participants open) is
+    judged by its lock file alone, so another user's killed process never counts as a leak.
+    Files in ``before`` (:func:`shm_snapshot` before the owner started: a port that a killed
+    process left earlier, then reused) are not the owner's either."""
     left = []
     for lock in sorted(held):
         base = lock[:-3]
         if (SHM_DIR / lock).exists() and _locked(SHM_DIR / lock):
             continue
+        port = _PORT_RE.match(base)
+        if domain is not None and port and not 0 <= int(port.group(1)) - (7400 + 250 * domain) < 250:
+            left += [lock] if (SHM_DIR / lock).exists() else []
+            continue
         left += [n for n in (base, lock, f'sem.{base}_mutex') if (SHM_DIR / n).exists()]
-    return left
+    return [n for n in left if n not in before]
