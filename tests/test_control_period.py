@@ -301,3 +301,16 @@ def test_phases_and_multi_step_windows_step_at_the_policy_dt(tmp_path):
     trainer.run()
     from knode_swarm_ros.core import load_policy
     assert load_policy(tmp_path / 'run' / 'policy.pt').dt == 0.05
+
+
+def test_choosing_the_shipped_policy_for_a_rate_imports_no_torch():
+    """An onnxruntime robot picks its realtime policy from knode.json alone (torch blocked)."""
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from knode_swarm_ros.nodes.control_period import shipped_policy_for_rate\n"
+            "path, matched = shipped_policy_for_rate('flock2d', 20.0)\n"
+            "print(path.name, matched)")
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ['flock2d_20hz.pt', 'True']

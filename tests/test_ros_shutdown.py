@@ -25,6 +25,8 @@ WAIT_S = 120  # generous: only a hang fails
 def _command(node, tmp_path, untrained_policies):
     if node == 'agent':
         return ['-p', 'id:=0', '-p', 'robots:=2', '-p', f"policy:={untrained_policies['flock2d']}"], 'publishing'
+    if node == 'agents':  # the hosted agents: several robots in one process
+        return ['-p', 'ids:=[0,1]', '-p', 'robots:=2', '-p', f"policy:={untrained_policies['flock2d']}"], '(2 hosted)'
     if node == 'simulator':
         return ['-p', 'robots:=2', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
                 '-p', 'real_time_factor:=1.0'], ': running'
@@ -59,7 +61,7 @@ def _catches_sigterm(pid) -> bool:
     return bool(caught & (1 << (signal.SIGTERM - 1)))
 
 
-@pytest.mark.parametrize('node', ['agent', 'simulator', 'recorder'])
+@pytest.mark.parametrize('node', ['agent', 'agents', 'simulator', 'recorder'])
 def test_a_signal_at_any_moment_gives_a_clean_exit(node, tmp_path, untrained_policies, ros_domain_id):
     args, running = _command(node, tmp_path, untrained_policies)
     # 1) SIGTERM at once: wherever start-up has got to. Before the package's handler exists,

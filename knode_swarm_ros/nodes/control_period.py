@@ -81,12 +81,13 @@ def shipped_policy_for_rate(scenario: str, rate: float) -> Tuple[Path, bool]:
     Raises:
         PolicyError: no shipped policy of ``scenario`` at all.
     """
-    from ..core.policy_io import PolicyError, load_policy, shipped_policy_path  # torch: only here
+    # knode.json only: an onnxruntime robot never imports torch to pick its policy
+    from ..core.policy_meta import PolicyError, read_pt_meta, shipped_policy_path
     default = shipped_policy_path(scenario)
     try:
         path = shipped_policy_path(f'{scenario}_{rate:g}hz')
-        if check_control_period(rate, load_policy(path).dt).equal:
+        if check_control_period(rate, float(read_pt_meta(path)['dt'])).equal:
             return path, True
     except PolicyError:
         pass
-    return default, check_control_period(rate, load_policy(default).dt).equal
+    return default, check_control_period(rate, float(read_pt_meta(default)['dt'])).equal

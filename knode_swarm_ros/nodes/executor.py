@@ -22,8 +22,9 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from .common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, ConfigError
+from .native_preload import preloading
 
-__all__ = ['make_executor', 'spin_until', 'run_node']
+__all__ = ['make_executor', 'spin_until', 'run_node', 'destroy_node']
 
 RCLError = _rclpy.RCLError
 
@@ -68,9 +69,9 @@ class _Interrupts:
     Python's own SIGINT handler raises KeyboardInterrupt wherever the main thread happens to be
     (inside rclpy.init, a callback, the recorder's save, the executor's teardown: an exception
     thrown through the EventsExecutor's C++ aborts the process). This handler only records the
-    signal, which stops the start-up at the next step; once the EventsExecutor exists, its own
-    handler takes over (it stops the spin and shuts the context down, which ends
-    :func:`spin_until`).
+    signal; while the node is built it raises :class:`_StartupInterrupted` (the start-up is
+    abandoned, not finished first), and afterwards :func:`spin_until` sees the flag between
+    slices (rclpy's handlers are off, so the EventsExecutor installs none of its own).
     """
 
     def __init__(self):
@@ -79,23 +80,55 @@ class _Interrupts:
         self._old = {}
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig, handler in ((signal.SIGINT, self._note), (signal.SIGTERM, self._note), (signal.SIGALRM, self._retry)):
             try:
-                self._old[sig] = signal.signal(sig, self._note)
+                self._old[sig] = signal.signal(sig, handler)
             except ValueError:  # not the main thread (tests): leave the handlers alone
                 pass
         return self
 
-    def _note(self, signum, _frame) -> None:
+    def _note(self, signum, frame) -> None:
         self.signal = signum
         if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
+            if not _safe_to_raise(frame):
+                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)  # try again from a later frame
+                return
             self.raising = False
             raise _StartupInterrupted()
 
+    def _retry(self, _signum, frame) -> None:
+        if self.signal is not None:
+            self._note(self.signal, frame)
+
     def __exit__(self, *exc):
+        if signal.SIGALRM in self._old:
+            signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, old in self._old.items():
             signal.signal(sig, old)
         return False
+
+
+_IMPORT_MACHINERY = '<frozen importlib._bootstrap>'
+_RETRY_S = 0.005
+
+
+def _safe_to_raise(frame) -> bool:
+    """Whether an exception raised in ``frame`` unwinds only through Python.
+
+    Not in importlib's bootstrap: there the raise can land in the module lock's weakref
+    callback, which ignores it ("Exception ignored in ... cb", measured). Not below a function
+    of torch: torch calls back into Python from C++ (TorchScript compiles at import), and an
+    exception thrown through that C++ aborted the agent once in 35 stops during start-up
+    (status -6, measured under load). Module-level code (an import) is run by importlib only.
+    """
+    if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
+        return False
+    while frame is not None:
+        code = frame.f_code
+        if '/torch/' in code.co_filename and code.co_name != '<module>':
+            return False
+        frame = frame.f_back
+    return True
 
 
 class _StartupInterrupted(BaseException):
@@ -119,6 +152,37 @@ def _teardown(executor, node: Optional[Node]) -> None:
         print(f'knode_swarm_ros: executor teardown: {type(exc).__name__}: {exc}', file=sys.stderr)
 
 
+def destroy_node(node: Node) -> None:
+    """Destroy ``node`` and everything that keeps its handle alive.
+
+    rclpy's ``LifecycleNode.destroy_node`` (Jazzy) leaves its state machine, which holds the
+    node handle: the node is then never really destroyed, nor the context after it, so the DDS
+    participant outlives the process's clean-up and its shared-memory segment
+    (``/dev/shm/fastrtps_<id>``, ``_el``) and port lock files stay behind (measured: the
+    lifecycle agent on 49 of 50 stops, a plain node on none). Also frees a node whose
+    constructor was cut short (raises what rclpy's ``destroy_node`` raised then)."""
+    try:
+        node.destroy_node()
+    finally:
+        # rclpy's destroy_node stops at the first part that a constructor cut short had not made
+        # yet (its type description service comes last) before it reaches the handle.
+        for part in (getattr(node, '_state_machine', None), getattr(node, '_Node__node', None)):
+            if part is not None:
+                part.destroy_when_not_in_use()
+
+
+def _node_under_construction(tb) -> Optional[Node]:
+    """The node whose ``__init__`` an exception (a signal, a bad parameter) cut short: the
+    ``self`` of the outermost constructor frame in the traceback. It already owns a node handle
+    (and so the DDS participant); unless destroyed, it keeps them past the context's end."""
+    while tb is not None:
+        candidate = tb.tb_frame.f_locals.get('self')
+        if isinstance(candidate, Node) and tb.tb_frame.f_code.co_name == '__init__':
+            return candidate
+        tb = tb.tb_next
+    return None
+
+
 def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node], None], args=None) -> None:
     """The ros2/examples ``main()`` shared by the executables: init, build, spin, clean up, exit.
 
@@ -127,10 +191,13 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
     rcl cannot parse (a broken ``--params-file``) exit with EXIT_CONFIG and a message naming the
     problem; Ctrl-C / SIGTERM at any time, during start-up included, exit cleanly with EXIT_OK;
     anything else prints its traceback and exits with EXIT_FAILURE. ``on_exit(node)`` (reports,
-    saving) always runs before the node is destroyed, and is not interrupted by a second Ctrl-C.
-    The process ends here (:func:`_end_process`): call it only as an executable's ``main()``.
+    saving) always runs before the node is destroyed, and is not interrupted by a second Ctrl-C;
+    a node whose construction a signal or an error cut short is destroyed without it (its handle
+    holds the DDS participant). The process ends here (:func:`_end_process`): call it only as an
+    executable's ``main()``.
     """
     node: Optional[Node] = None
+    half_built: Optional[Node] = None  # a node whose construction was cut short: destroyed, no on_exit
     executor = None
     code = EXIT_OK
     with _Interrupts() as interrupts:
@@ -146,7 +213,11 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
             if interrupts.signal is None:
                 interrupts.raising = True
                 try:
-                    node = make_node()
+                    with preloading():  # torch's libraries load where a signal is still seen
+                        node = make_node()
+                except BaseException as exc:
+                    half_built = _node_under_construction(exc.__traceback__)
+                    raise
                 finally:
                     interrupts.raising = False
             if interrupts.signal is None:
@@ -175,7 +246,13 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
                     on_exit(node)
                 except OSError as exc:
                     print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
-                node.destroy_node()
+                destroy_node(node)
+            if half_built is not None:
+                try:
+                    destroy_node(half_built)
+                except Exception:  # noqa: BLE001 - rclpy's part fails on what was never made; the handle went
+                    pass
+                half_built = None
             rclpy.try_shutdown()
             # The DDS participant (and its /dev/shm files) goes with the context, now.
             rclpy.get_default_context().destroy()

@@ -15,7 +15,7 @@ import sys
 
 __all__ = ['quiet_until_running', 'started_as_program']
 
-_PROGRAMS = ('agent', 'simulator', 'recorder')
+_PROGRAMS = ('agent', 'agents', 'simulator', 'recorder')
 
 
 def started_as_program() -> bool:

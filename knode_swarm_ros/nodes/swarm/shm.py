@@ -14,9 +14,9 @@ import fcntl
 import os
 import re
 from pathlib import Path
-from typing import List
+from typing import List, Optional
 
-__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup']
+__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup', 'shm_held_by', 'shm_left_by']
 
 SHM_DIR = Path('/dev/shm')
 _SHM_RE = re.compile(r'^(sem\.)?(fastrtps|fastdds)_')
@@ -70,3 +70,58 @@ def shm_cleanup(before: set) -> List[str]:
                 except OSError:
                     pass
     return removed
+
+
+def shm_held_by(pid: int) -> set:
+    """Names of the FastDDS lock files (``X_el``, ``X_sl``) that process ``pid`` holds a lock on
+    now, read from /proc/locks: those of its own segment and of the ports it listens on, which a
+    clean exit removes (with ``X`` and ``sem.X_mutex``). Files of other processes, a concurrent
+    test suite's included, are never among them."""
+    try:
+        lines = Path('/proc/locks').read_text().splitlines()
+    except OSError:
+        return set()
+    held = set()  # (major, minor, inode) as /proc/locks writes them: "1: FLOCK ADVISORY WRITE pid 00:1a:123 0 EOF"
+    for line in lines:
+        fields = line.replace('->', ' ').split()
+        if len(fields) >= 6 and fields[4] == str(pid) and fields[5].count(':') == 2:
+            major, minor, inode = fields[5].split(':')
+            held.add((int(major, 16), int(minor, 16), int(inode)))
+    names = set()
+    for name in shm_snapshot():
+        if not name.endswith(('_el', '_sl')):
+            continue
+        try:
+            st = (SHM_DIR / name).stat()
+        except OSError:
+            continue
+        if (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino) in held:
+            names.add(name)
+    return names
+
+
+_PORT_RE = re.compile(r'^fastrtps_port(\d+)$')
+
+
+def shm_left_by(held: set, domain: Optional[int] = None, before: frozenset = frozenset()) -> List[str]:
+    """Files of the groups whose lock files ``held`` (:func:`shm_held_by`, taken while the owner
+    ran) names that are still in /dev/shm after the owner ended, unless a live process holds the
+    group's lock again (a later participant reusing a port).
+
+    A port's segment and mutex stay behind when any process that had opened the port was killed
+    (measured), whoever owns it. With ``domain``, a port outside that domain's range (7400 + 250
+    * domain + 0..249: e.g. ``fastrtps_port7000``, which every domain's participants open) is
+    judged by its lock file alone, so another user's killed process never counts as a leak.
+    Files in ``before`` (:func:`shm_snapshot` before the owner started: a port that a killed
+    process left earlier, then reused) are not the owner's either."""
+    left = []
+    for lock in sorted(held):
+        base = lock[:-3]
+        if (SHM_DIR / lock).exists() and _locked(SHM_DIR / lock):
+            continue
+        port = _PORT_RE.match(base)
+        if domain is not None and port and not 0 <= int(port.group(1)) - (7400 + 250 * domain) < 250:
+            left += [lock] if (SHM_DIR / lock).exists() else []
+            continue
+        left += [n for n in (base, lock, f'sem.{base}_mutex') if (SHM_DIR / n).exists()]
+    return [n for n in left if n not in before]

@@ -1,0 +1,142 @@
+"""Issue 10, "Done when": a node stopped by SIGINT or SIGTERM while messages flow, or while it is
+still being built, exits 0 and leaves none of its FastDDS shared-memory files behind.
+
+Which files are the node's own is read from /proc/locks while it runs (the lock files of its
+segment and its ports, :func:`shm_held_by`), so files of a concurrent copy of the suite, or of
+the traffic simulator, never count. Before the fix the lifecycle agent left its segment and
+ports on almost every stop: rclpy's LifecycleNode.destroy_node keeps the state machine, which
+holds the node, which keeps the DDS participant past the context's end. The tests wait only for
+polled conditions (log lines) with generous deadlines; the 2 s figure is bench/bench_shutdown.py's.
+"""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import rclpy  # noqa: F401  (a broken install must fail, not skip)
+from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot
+
+pytestmark = pytest.mark.ros
+
+WAIT_S = 120  # generous: only a hang fails
+ROBOTS = 2
+TRAFFIC = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
+           '-p', 'publish_rate:=20.0']
+
+
+def _start(argv, log):
+    env = dict(os.environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
+    return subprocess.Popen([sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+def _node_argv(node, tmp_path, policy):
+    """``(argv, line it logs once it has heard every robot or runs)`` of ``node``."""
+    heard = f'heard all {ROBOTS} robots: ready'
+    args = {'agent': ['-p', 'id:=0', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy}', '-p', 'use_sim_time:=true'],
+            'agents': ['-p', 'ids:=[0,1]', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy}',
+                       '-p', 'use_sim_time:=true'],
+            'simulator': TRAFFIC,
+            'recorder': ['-p', f'robots:={ROBOTS}', '-p', f"output:={tmp_path / 'rec.npz'}",
+                         '-p', 'use_sim_time:=true'],
+            }[node]
+    ready = {'simulator': ': running'}.get(node, heard)
+    return ['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], ready
+
+
+def _wait_for(proc, log_path, text):
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline and proc.poll() is None and text not in log_path.read_text(errors='replace'):
+        time.sleep(0.05)
+    assert proc.poll() is None and text in log_path.read_text(errors='replace'), log_path.read_text(errors='replace')
+
+
+def _held_while_running(proc) -> set:
+    """The node's lock files, read a few times (a port may open late); at least its segment's."""
+    held = set()
+    for _ in range(4):
+        held |= shm_held_by(proc.pid)
+        time.sleep(0.1)
+    assert any('port' not in name for name in held), f'no segment lock held by {proc.pid}: {held}'
+    return held
+
+
+def _stop(proc, sig):
+    proc.send_signal(sig)
+    try:
+        return proc.wait(timeout=WAIT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.parametrize('node,sig', [('agent', signal.SIGINT), ('agent', signal.SIGTERM),
+                                      ('agents', signal.SIGINT), ('simulator', signal.SIGTERM),
+                                      ('recorder', signal.SIGINT)])
+def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, tmp_path, untrained_policies,
+                                                                      ros_domain_id):
+    traffic = None
+    if node != 'simulator':
+        traffic = _start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
+                         open(tmp_path / 'traffic.log', 'wb'))
+    try:
+        argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
+        log_path = tmp_path / f'{node}.log'
+        before = frozenset(shm_snapshot())  # a port a killed process left earlier is not this node's
+        with open(log_path, 'wb') as log:
+            proc = _start(argv, log)
+        _wait_for(proc, log_path, ready)
+        held = _held_while_running(proc)
+        rc = _stop(proc, sig)
+        text = log_path.read_text(errors='replace')
+        assert rc == 0 and 'Traceback' not in text and 'Aborted' not in text, f'rc {rc}\n{text}'
+        segments = {name for name in held if 'port' not in name}
+        assert shm_left_by(segments) == [], f'{node} left its segment after {sig.name}\n{text[-2000:]}'
+    finally:
+        if traffic is not None:
+            assert _stop(traffic, signal.SIGINT) == 0
+    # A port the node listened on is also open in the peers that sent to it: it goes with the last.
+    assert shm_left_by(held, ros_domain_id, before) == [], f'{node} left its ports after {sig.name}'
+
+
+# The node is built with a step that never ends by itself (it waits in Python, where a signal is
+# handled): the policy load, or the last part of rclpy's Node constructor (its type description
+# service), after which rclpy's destroy_node works and before which it stops short of the handle.
+# The signal must end the start-up, not wait for it to finish, and free the half-built node.
+_BLOCKED = """
+import sys, time
+import rclpy.node
+from knode_swarm_ros.nodes import agent, {module}
+def never_ending(*args, **kwargs):
+    print('blocked in construction', flush=True)
+    time.sleep(3600)
+if '{step}' == 'policy':
+    agent.load_agent_policy = {module}.load_agent_policy = never_ending
+else:
+    rclpy.node.TypeDescriptionService = never_ending
+sys.argv = ['{module}', '--ros-args', *sys.argv[1:]]
+{module}.main()
+"""
+
+
+@pytest.mark.parametrize('node,step,sig', [('agent', 'policy', signal.SIGINT), ('agent', 'policy', signal.SIGTERM),
+                                           ('agents', 'policy', signal.SIGINT), ('agent', 'rclpy', signal.SIGTERM),
+                                           ('simulator', 'rclpy', signal.SIGINT)])
+def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, sig, tmp_path, untrained_policies,
+                                                                     ros_domain_id):
+    argv, _ = _node_argv(node, tmp_path, untrained_policies['flock2d'])
+    log_path = tmp_path / f'{node}.log'
+    before = frozenset(shm_snapshot())
+    with open(log_path, 'wb') as log:
+        proc = _start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
+    _wait_for(proc, log_path, 'blocked in construction')
+    held = _held_while_running(proc)  # the half-built node already has its DDS participant
+    rc = _stop(proc, sig)
+    text = log_path.read_text(errors='replace')
+    assert rc == 0 and 'Traceback' not in text and 'KeyboardInterrupt' not in text, f'rc {rc}\n{text}'
+    assert '(k=' not in text and ': running' not in text, text  # what a built node logs: it never got there
+    assert shm_left_by(held, ros_domain_id, before) == [], f'{node} left its shared memory\n{text[-2000:]}'

@@ -1,0 +1,38 @@
+"""swarm.shm.shm_held_by / shm_left_by: a process's FastDDS files are the lock files it holds
+(/proc/locks); after it ends, what of their groups is still there, unlocked, is its leak, except
+the segment and mutex of a port that every domain opens (another user's killed process keeps
+them)."""
+import fcntl
+import os
+
+from knode_swarm_ros.nodes.swarm import shm
+
+
+def _group(root, base):
+    for name in (base, f'{base}_el', f'sem.{base}_mutex'):
+        (root / name).write_bytes(b'')
+
+
+def test_held_files_are_the_locked_ones_and_what_stays_after_the_owner_is_the_leak(tmp_path, monkeypatch):
+    monkeypatch.setattr(shm, 'SHM_DIR', tmp_path)
+    domain = 42
+    own_port = f'fastrtps_port{7400 + 250 * domain + 11}'
+    for base in ('fastrtps_0123456789abcdef', own_port, 'fastrtps_port7000', 'fastrtps_feedfacefeedface'):
+        _group(tmp_path, base)
+    handles = [open(tmp_path / f'{base}_el', 'ab') for base in ('fastrtps_0123456789abcdef', own_port,
+                                                                  'fastrtps_port7000')]
+    for fh in handles:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    held = shm.shm_held_by(os.getpid())
+    assert held == {'fastrtps_0123456789abcdef_el', f'{own_port}_el', 'fastrtps_port7000_el'}
+    assert shm.shm_left_by(held, domain) == []  # all still locked: a live owner
+    for fh in handles:
+        fh.close()  # the owner "ends" without removing anything
+    (tmp_path / 'fastrtps_port7000_el').unlink()  # a clean exit removes the lock, the shared port stays
+    segment = 'fastrtps_0123456789abcdef'
+    assert shm.shm_left_by(held, domain) == [segment, f'{segment}_el', f'sem.{segment}_mutex',
+                                             own_port, f'{own_port}_el', f'sem.{own_port}_mutex']
+    assert shm.shm_left_by(held, domain, before=frozenset({own_port, f'sem.{own_port}_mutex'})) == \
+        [segment, f'{segment}_el', f'sem.{segment}_mutex', f'{own_port}_el']  # there before: not its
+    # without a domain every port counts whole
+    assert 'fastrtps_port7000' in shm.shm_left_by(held)
