@@ -26,7 +26,8 @@ def test_where_a_raise_unwinds_through_python_only():
     assert _safe_to_raise(sys._getframe())
     assert not _safe_to_raise(_frame_in(_IMPORT_MACHINERY))
     assert not _safe_to_raise(_frame_in('/venv/site-packages/torch/jit/_script.py', 'script'))
-    assert _safe_to_raise(_frame_in('/venv/site-packages/torch/functional.py'))  # an import's module level
+    # torch's module level too: a raise while importing torch aborted the agent (status -6)
+    assert not _safe_to_raise(_frame_in('/venv/site-packages/torch/functional.py'))
 
 
 def test_a_signal_while_building_raises_at_once_but_not_inside_importlib():

@@ -119,13 +119,15 @@ def _safe_to_raise(frame) -> bool:
     callback, which ignores it ("Exception ignored in ... cb", measured). Not below a function
     of torch: torch calls back into Python from C++ (TorchScript compiles at import), and an
     exception thrown through that C++ aborted the agent once in 35 stops during start-up
-    (status -6, measured under load). Module-level code (an import) is run by importlib only.
+    (status -6, measured under load). Nor in torch's own module-level code: a raise during
+    ``import torch`` (torch/functional.py) aborted it once in 50 (bench_shutdown, 2026-11-30),
+    so a signal then waits for the import to end (about a second under load).
     """
     if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
         return False
     while frame is not None:
         code = frame.f_code
-        if '/torch/' in code.co_filename and code.co_name != '<module>':
+        if '/torch/' in code.co_filename:
             return False
         frame = frame.f_back
     return True
