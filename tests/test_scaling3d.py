@@ -199,3 +199,45 @@ def test_grid_boids3d_rollouts_per_start_and_reevaluation(tmp_path):
     assert results["tables"]["amd_final_mean"][0][0] == pytest.approx(np.mean(cell["amd_final"]))
     assert (out / "heatmap_amd_final_median.png").is_file() and (out / "heatmap_left_cube_mean.png").is_file()
     assert grid_main(args + ["--rollouts", "0"]) == 2
+
+
+def test_scaling_study_known_answers_with_a_scripted_rollout(tmp_path):
+    """The study's pipeline against known answers: a "policy" that replays the ground truth scores
+    amd error 0, POD-KLD 0 and the truth's subswarms; one that pushes boid 0 of start 1 through +y
+    from frame 3 on is counted as exactly one escape, in one start, through +y."""
+    from types import SimpleNamespace
+    from knode_swarm_ros.core.groundtruth import simulate as sim
+    from training.scaling import scaling_study
+    policy = SimpleNamespace(scenario="boids3d", dt=1 / 60, d_cr=2.0)
+    sizes, ics, steps, seed = (5, 12), 3, 8, 7
+    os.makedirs(tmp_path / "same"), os.makedirs(tmp_path / "out")
+
+    def replay(pol, z0, n_steps):
+        truth = sim("boids3d", ics, z0.shape[1], n_steps + 1, seed + z0.shape[1], preset="published", progress=False)
+        np.testing.assert_array_equal(truth[:, 0], z0)       # the rollout starts from the truth's first frame
+        return truth
+
+    s = scaling_study(policy, str(tmp_path / "same"), sizes, ics, steps, seed, preset="published",
+                      log=lambda *a: None, rollout_fn=replay)
+    for r in s["rows"]:
+        assert r["amd_rel_error"] == 0.0 and r["starts_inside"] == r["truth_starts_inside"] == ics
+        np.testing.assert_allclose(r["per_start"]["pod_kld"], 0.0, atol=1e-12)
+        assert r["per_start"]["subswarms"] == r["per_start"]["truth_subswarms"]
+        assert r["per_start"]["escaped"] == [0.0] * ics
+    assert s["escape_events"] == {"5": [], "12": []}
+
+    def push_out(pol, z0, n_steps):
+        z = replay(pol, z0, n_steps).copy()
+        z[1, 3:, 0, 1] = 5.5                                  # start 1, boid 0, y beyond the +5 wall
+        return z
+
+    s = scaling_study(policy, str(tmp_path / "out"), sizes, ics, steps, seed, preset="published",
+                      log=lambda *a: None, rollout_fn=push_out)
+    for r, n in zip(s["rows"], sizes):
+        assert r["starts_inside"] == ics - 1 and r["truth_starts_inside"] == ics
+        np.testing.assert_allclose(r["per_start"]["escaped"], [0.0, 1.0 / n, 0.0])
+        (e,) = s["escape_events"][str(n)]
+        assert (e["start"], e["boid"], e["frame"], e["wall"], e["inside_at_end"]) == (1, 0, 3, "+y", False)
+        assert s["curves"][str(n)]["escaped"]["prediction"][-1] == pytest.approx(1.0 / (ics * n))
+    assert s["goal_check"] == {}                              # no goal size among 5, 12
+    assert (tmp_path / "out" / "scaling.png").stat().st_size > 0
