@@ -96,6 +96,12 @@ def test_goal_check_thresholds():
     assert not check["90: amd_within_15%"] and not check["90: inside>=14/15"]
     assert not any(key.startswith("10:") for key in check)
     assert goal_check([row(50, 0.0, 2)], ics=2)["50: inside>=2/2"]     # 14/15 of 2 starts rounds up to 2
+    # Starts whose only exits are boids outside in the first frame (spawn) are counted apart.
+    events = {"90": [{"start": 1, "frame": 0}, {"start": 1, "frame": 0}, {"start": 4, "frame": 0},
+                     {"start": 4, "frame": 7}, {"start": 6, "frame": 3}], "50": []}
+    check = goal_check([row(50, 0.0, 15), row(90, 0.0, 12)], ics=15, events=events)
+    assert check["90: spawn_outside"] == 1 and check["50: spawn_outside"] == 0
+    assert "90: spawn_outside" not in goal_check([row(90, 0.0, 12)], ics=15)
 
 
 # ----------------------------------------------------------------------------- drivers
@@ -126,7 +132,8 @@ def test_scaling_driver_tiny_configuration(tmp_path):
         assert r["truth_starts_inside"] == 2                # the boids never leave their cube
     assert set(s["escape_events"]) == {"6", "50"} and set(s["curves"]) == {"6", "50"}
     assert len(s["curves"]["50"]["t"]) == 7 and set(s["curves"]["50"]) == {"t", "subswarms", "escaped", "amd"}
-    assert set(s["goal_check"]) == {"50: amd_within_15%", "50: amd_rel_error", "50: inside>=2/2", "50: starts_inside"}
+    assert set(s["goal_check"]) == {"50: amd_within_15%", "50: amd_rel_error", "50: inside>=2/2", "50: starts_inside",
+                                    "50: spawn_outside"}
     for name in ("scaling.png", "departures.png", "summary.md"):
         assert (out / name).stat().st_size > 0, name
     text = (out / "summary.md").read_text()
