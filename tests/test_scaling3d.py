@@ -248,3 +248,22 @@ def test_scaling_study_known_answers_with_a_scripted_rollout(tmp_path):
         assert s["curves"][str(n)]["escaped"]["prediction"][-1] == pytest.approx(1.0 / (ics * n))
     assert s["goal_check"] == {}                              # no goal size among 5, 12
     assert (tmp_path / "out" / "scaling.png").stat().st_size > 0
+
+
+def test_crowding_on_a_hand_built_frame(tmp_path, capsys):
+    from training.crowding import crowding, main as crowding_main
+    # Boid 0 at the origin with 6 others at 1.0, 1.5, 1.9 (x2), 2.0 and 3.0: 5 within d_cr 2 (<=).
+    pts = [[0, 0, 0], [1.0, 0, 0], [0, 1.5, 0], [0, 0, 1.9], [-1.9, 0, 0], [0, -2.0, 0], [0, 0, -3.0]]
+    c = crowding(frame(pts)[None], d_cr=2.0, k=6)
+    d = np.linalg.norm(np.asarray(pts, float)[:, None] - np.asarray(pts, float)[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    within = (d <= 2.0).sum(axis=1)
+    assert within[0] == 5 and c["in_range_mean"] == pytest.approx(within.mean())
+    assert c["unseen_share"] == pytest.approx(np.mean(within > 5))
+    assert c["nn_median"] == pytest.approx(np.median(d.min(axis=1)))
+    assert crowding(frame(pts)[None], d_cr=2.0, k=5)["unseen_share"] >= 1 / 7     # boid 0 now misses one
+    ex = {"robots": 7, "start": 0, "prediction": frame(pts).tolist(), "ground truth": frame(pts).tolist()}
+    (tmp_path / "r.json").write_text(json.dumps({"scaling": {"example": ex}}))
+    assert crowding_main([str(tmp_path / "r.json")]) == 0
+    assert capsys.readouterr().out.count("7 boids, start 0") == 2
+    assert crowding_main([str(tmp_path / "missing.json")]) == 2
