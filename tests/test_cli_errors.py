@@ -43,6 +43,7 @@ CASES = [
     ("rate_study", "--data {tmp}/missing.npz --case 10={tmp}/missing.pt --out {tmp}/out", "--case"),
     ("compare_controllers", "--data {tmp}/missing.npz --policy p={tmp}/missing.pt --out {tmp}/out", "missing"),
     ("scaling3d", "--merge {tmp}/missing.json --out {tmp}/out", "missing.json"),
+    ("crowding", "{tmp}/missing.json", "missing.json"),
     ("unicycle_study", "--policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
     ("demo", "--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
 ]

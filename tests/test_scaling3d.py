@@ -96,6 +96,12 @@ def test_goal_check_thresholds():
     assert not check["90: amd_within_15%"] and not check["90: inside>=14/15"]
     assert not any(key.startswith("10:") for key in check)
     assert goal_check([row(50, 0.0, 2)], ics=2)["50: inside>=2/2"]     # 14/15 of 2 starts rounds up to 2
+    # Starts whose only exits are boids outside in the first frame (spawn) are counted apart.
+    events = {"90": [{"start": 1, "frame": 0}, {"start": 1, "frame": 0}, {"start": 4, "frame": 0},
+                     {"start": 4, "frame": 7}, {"start": 6, "frame": 3}], "50": []}
+    check = goal_check([row(50, 0.0, 15), row(90, 0.0, 12)], ics=15, events=events)
+    assert check["90: spawn_outside"] == 1 and check["50: spawn_outside"] == 0
+    assert "90: spawn_outside" not in goal_check([row(90, 0.0, 12)], ics=15)
 
 
 # ----------------------------------------------------------------------------- drivers
@@ -126,7 +132,8 @@ def test_scaling_driver_tiny_configuration(tmp_path):
         assert r["truth_starts_inside"] == 2                # the boids never leave their cube
     assert set(s["escape_events"]) == {"6", "50"} and set(s["curves"]) == {"6", "50"}
     assert len(s["curves"]["50"]["t"]) == 7 and set(s["curves"]["50"]) == {"t", "subswarms", "escaped", "amd"}
-    assert set(s["goal_check"]) == {"50: amd_within_15%", "50: amd_rel_error", "50: inside>=2/2", "50: starts_inside"}
+    assert set(s["goal_check"]) == {"50: amd_within_15%", "50: amd_rel_error", "50: inside>=2/2", "50: starts_inside",
+                                    "50: spawn_outside"}
     for name in ("scaling.png", "departures.png", "summary.md"):
         assert (out / name).stat().st_size > 0, name
     text = (out / "summary.md").read_text()
@@ -199,3 +206,64 @@ def test_grid_boids3d_rollouts_per_start_and_reevaluation(tmp_path):
     assert results["tables"]["amd_final_mean"][0][0] == pytest.approx(np.mean(cell["amd_final"]))
     assert (out / "heatmap_amd_final_median.png").is_file() and (out / "heatmap_left_cube_mean.png").is_file()
     assert grid_main(args + ["--rollouts", "0"]) == 2
+
+
+def test_scaling_study_known_answers_with_a_scripted_rollout(tmp_path):
+    """The study's pipeline against known answers: a "policy" that replays the ground truth scores
+    amd error 0, POD-KLD 0 and the truth's subswarms; one that pushes boid 0 of start 1 through +y
+    from frame 3 on is counted as exactly one escape, in one start, through +y."""
+    from types import SimpleNamespace
+    from knode_swarm_ros.core.groundtruth import simulate as sim
+    from training.scaling import scaling_study
+    policy = SimpleNamespace(scenario="boids3d", dt=1 / 60, d_cr=2.0)
+    sizes, ics, steps, seed = (5, 12), 3, 8, 7
+    os.makedirs(tmp_path / "same"), os.makedirs(tmp_path / "out")
+
+    def replay(pol, z0, n_steps):
+        truth = sim("boids3d", ics, z0.shape[1], n_steps + 1, seed + z0.shape[1], preset="published", progress=False)
+        np.testing.assert_array_equal(truth[:, 0], z0)       # the rollout starts from the truth's first frame
+        return truth
+
+    s = scaling_study(policy, str(tmp_path / "same"), sizes, ics, steps, seed, preset="published",
+                      log=lambda *a: None, rollout_fn=replay)
+    for r in s["rows"]:
+        assert r["amd_rel_error"] == 0.0 and r["starts_inside"] == r["truth_starts_inside"] == ics
+        np.testing.assert_allclose(r["per_start"]["pod_kld"], 0.0, atol=1e-12)
+        assert r["per_start"]["subswarms"] == r["per_start"]["truth_subswarms"]
+        assert r["per_start"]["escaped"] == [0.0] * ics
+    assert s["escape_events"] == {"5": [], "12": []}
+
+    def push_out(pol, z0, n_steps):
+        z = replay(pol, z0, n_steps).copy()
+        z[1, 3:, 0, 1] = 5.5                                  # start 1, boid 0, y beyond the +5 wall
+        return z
+
+    s = scaling_study(policy, str(tmp_path / "out"), sizes, ics, steps, seed, preset="published",
+                      log=lambda *a: None, rollout_fn=push_out)
+    for r, n in zip(s["rows"], sizes):
+        assert r["starts_inside"] == ics - 1 and r["truth_starts_inside"] == ics
+        np.testing.assert_allclose(r["per_start"]["escaped"], [0.0, 1.0 / n, 0.0])
+        (e,) = s["escape_events"][str(n)]
+        assert (e["start"], e["boid"], e["frame"], e["wall"], e["inside_at_end"]) == (1, 0, 3, "+y", False)
+        assert s["curves"][str(n)]["escaped"]["prediction"][-1] == pytest.approx(1.0 / (ics * n))
+    assert s["goal_check"] == {}                              # no goal size among 5, 12
+    assert (tmp_path / "out" / "scaling.png").stat().st_size > 0
+
+
+def test_crowding_on_a_hand_built_frame(tmp_path, capsys):
+    from training.crowding import crowding, main as crowding_main
+    # Boid 0 at the origin with 6 others at 1.0, 1.5, 1.9 (x2), 2.0 and 3.0: 5 within d_cr 2 (<=).
+    pts = [[0, 0, 0], [1.0, 0, 0], [0, 1.5, 0], [0, 0, 1.9], [-1.9, 0, 0], [0, -2.0, 0], [0, 0, -3.0]]
+    c = crowding(frame(pts)[None], d_cr=2.0, k=6)
+    d = np.linalg.norm(np.asarray(pts, float)[:, None] - np.asarray(pts, float)[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    within = (d <= 2.0).sum(axis=1)
+    assert within[0] == 5 and c["in_range_mean"] == pytest.approx(within.mean())
+    assert c["unseen_share"] == pytest.approx(np.mean(within > 5))
+    assert c["nn_median"] == pytest.approx(np.median(d.min(axis=1)))
+    assert crowding(frame(pts)[None], d_cr=2.0, k=5)["unseen_share"] >= 1 / 7     # boid 0 now misses one
+    ex = {"robots": 7, "start": 0, "prediction": frame(pts).tolist(), "ground truth": frame(pts).tolist()}
+    (tmp_path / "r.json").write_text(json.dumps({"scaling": {"example": ex}}))
+    assert crowding_main([str(tmp_path / "r.json")]) == 0
+    assert capsys.readouterr().out.count("7 boids, start 0") == 2
+    assert crowding_main([str(tmp_path / "missing.json")]) == 2

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from typing import Any, Dict, List, Sequence
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -157,7 +157,7 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
 
 def _assemble(rows, events, curves, example, settings) -> Dict[str, Any]:
     return {"sizes": [r["robots"] for r in rows], **settings, "rows": rows, "escape_events": events,
-            "curves": curves, "example": example, "goals": GOALS, "goal_check": goal_check(rows, settings["ics"]),
+            "curves": curves, "example": example, "goals": GOALS, "goal_check": goal_check(rows, settings["ics"], events),
             "amd_final_vs_first_size": [r["amd_final"]["mean"] / rows[0]["amd_final"]["mean"] for r in rows]}
 
 
@@ -192,8 +192,15 @@ def merge(studies: Sequence[Dict[str, Any]]) -> Dict[str, Any]:
     return _assemble(rows, events, curves, example, {k: studies[0][k] for k in keys})
 
 
-def goal_check(rows: Sequence[Dict[str, Any]], ics: int) -> Dict[str, Any]:
-    """Pass/fail of issue 17's goals at each of ``GOAL_SIZES`` present in ``rows``."""
+def goal_check(rows: Sequence[Dict[str, Any]], ics: int,
+               events: Optional[Dict[str, List[Dict[str, Any]]]] = None) -> Dict[str, Any]:
+    """Pass/fail of issue 17's goals at each of ``GOAL_SIZES`` present in ``rows``.
+
+    With the study's ``escape_events`` it also counts ``spawn_outside``: starts whose only exits
+    are at frame 0, i.e. a boid already outside in the first frame, which the policy shares with
+    the ground truth (the Unity spawn fills the ball of radius 5 that touches the walls, and 10
+    frames are discarded), so no learnt boid left the cube there.
+    """
     need = math.ceil(GOAL_INSIDE_SHARE * ics - 1e-9)
     check: Dict[str, Any] = {}
     for r in rows:
@@ -203,6 +210,11 @@ def goal_check(rows: Sequence[Dict[str, Any]], ics: int) -> Dict[str, Any]:
             check[f"{n}: amd_rel_error"] = round(float(r["amd_rel_error"]), 4)
             check[f"{n}: inside>={need}/{ics}"] = bool(r["starts_inside"] >= need)
             check[f"{n}: starts_inside"] = int(r["starts_inside"])
+            if events is not None:
+                starts: Dict[int, List[int]] = {}
+                for e in events.get(str(n), []):
+                    starts.setdefault(e["start"], []).append(e["frame"])
+                check[f"{n}: spawn_outside"] = sum(all(f == 0 for f in fr) for fr in starts.values())
     return check
 
 
@@ -225,7 +237,8 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
               *(f"{k}: {v}" for k, v in s["goal_check"].items()), "```", ""]
     ev = [e for n in s["sizes"] for e in s["escape_events"][str(n)]]
     if ev:
-        lines += [f"Escapes of learnt boids: {len(ev)} in all; sensed neighbours within d_cr just before leaving: "
+        lines += [f"Escapes of learnt boids: {len(ev)} in all, {sum(e['frame'] == 0 for e in ev)} of them boids "
+                  f"already outside in the first frame (shared with the ground truth); sensed neighbours within d_cr just before leaving: "
                   f"median {np.median([e['neighbours'] for e in ev]):.0f}, none in "
                   f"{sum(e['neighbours'] == 0 for e in ev)}; group size median "
                   f"{np.median([e['group'] for e in ev]):.0f}; back inside at the end: "
