@@ -12,8 +12,9 @@ Cost per mutant, and how it is kept small:
 - a mutant runs only the tests that execute its line(s), fastest first, stopping at the
   first failure (``-x``); a line no test executes in-process (import-time code such as
   constants and default arguments, code reached only through TorchScript or a child process)
-  runs every test of its module instead (``fallback``; all the tests when no test runs a
-  line of the module inside a test, as for a package ``__init__`` imported at collection), never
+  runs every test of its module instead (``fallback``; when no test runs any line of the module
+  inside a test, as for constants or a package ``__init__`` run at collection, the tests whose
+  file names the module), never
   skipped: an unexecuted mutant that survives is listed as a survivor like any other;
 - torch, numpy and pytest are imported once; each mutant runs ``pytest.main`` in a forked
   child (one torch thread), so no interpreter start per mutant;
@@ -107,15 +108,27 @@ def _tool(name: str) -> str:
     return str(Path(sys.executable).with_name(name))
 
 
-def _select(cov: dict, module: str, first: int, last: int):
-    """(test ids fastest first, 'covered' | 'fallback' | 'all') for a mutant on lines first..last:
-    the tests that run those lines; else every test that runs a line of the module; else all."""
+def _importers(tree: Path, module: str, tests) -> set:
+    """The tests whose file names ``module`` by its dotted path (``a.b.c`` or ``from a.b import``)."""
+    dotted = module[:-3].replace('/', '.').removesuffix('.__init__')
+    files = {t.split('::')[0] for t in tests}
+    named = {f for f in files if dotted in (tree / f).read_text()}
+    return {t for t in tests if t.split('::')[0] in named}
+
+
+def _select(cov: dict, module: str, first: int, last: int, tree: Path):
+    """(test ids fastest first, mode) for a mutant on lines first..last: the tests that run those
+    lines ('covered'); else every test that runs a line of the module ('fallback'); else (only
+    import-time lines, e.g. constants, a package ``__init__``) the tests whose file names the
+    module ('importers'); else all of them ('all')."""
     lines, dur = cov['lines'].get(module, {}), cov['durations']
     tests = {t for n in range(first, last + 1) for t in lines.get(str(n), []) if t}
     mode = 'covered'
     if not tests:
         tests, mode = {t for ts in lines.values() for t in ts if t}, 'fallback'
-    if not tests:  # only import-time lines (e.g. a package __init__ imported at collection)
+    if not tests:
+        tests, mode = _importers(tree, module, dur), 'importers'
+    if not tests:
         tests, mode = set(dur), 'all'
     return sorted(tests, key=lambda t: (dur.get(t, 0.0), t)), mode
 
@@ -145,18 +158,20 @@ def _run_tests(tree: Path, tests, timeout: float, log: Path):
         sys.stderr.flush()
         os._exit(int(rc))
     deadline = time.monotonic() + timeout
-    while True:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            return os.waitstatus_to_exitcode(status) if os.WIFEXITED(status) else 'signal'
-        if time.monotonic() > deadline:
-            try:
-                os.killpg(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+    try:
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                return os.waitstatus_to_exitcode(status) if os.WIFEXITED(status) else 'signal'
+            if time.monotonic() > deadline:
+                return 'timeout'
+            time.sleep(0.05)
+    finally:  # timeout, Ctrl-C or SIGTERM: the run and whatever it started end with us
+        try:
+            os.killpg(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
-            return 'timeout'
-        time.sleep(0.05)
+        except (ProcessLookupError, ChildProcessError):
+            pass
 
 
 def _sample(work_db, size: int, seed: int) -> None:
@@ -196,7 +211,7 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
             _sample(work_db, sample, seed)
         for item in list(work_db.pending_work_items):
             m = item.mutations[0]
-            tests, mode = _select(cov, module, m.start_pos[0], m.end_pos[0])
+            tests, mode = _select(cov, module, m.start_pos[0], m.end_pos[0], tree)
             counts['fallback'] += mode != 'covered'
             budget = 3 * sum(cov['durations'].get(t, 1.0) for t in tests) + 20
             log = tree.parent / 'last_mutant.log'
@@ -206,6 +221,8 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                     rc = 'no mutation'
                 else:
                     rc = _run_tests(tree, tests, budget, log)
+                    if rc == 4 and 'ERROR collecting' in log.read_text():
+                        rc = 2  # the mutant broke an import: pytest says "no collectors" (4)
             if rc in (0, 1, 2, 3, 'signal'):
                 outcome = TestOutcome.SURVIVED if rc == 0 else TestOutcome.KILLED
                 result = WorkResult(worker_outcome=WorkerOutcome.NORMAL, test_outcome=outcome,
@@ -246,6 +263,7 @@ def main(argv=None) -> int:
     ap.add_argument('--reuse-coverage', action='store_true',
                     help='reuse <workdir>/coverage.json from an earlier run of the same tree')
     args = ap.parse_args(argv)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # unwind: restore the file, end the run
     names = [n for n in args.only.split(',') if n] or list(MODULES)
     unknown = [n for n in names if n not in MODULES]
     if unknown:
