@@ -125,3 +125,16 @@ def test_parse_set():
     for bad in ("training.epochs", "=3", "a.b=[1, 2"):
         with pytest.raises(ConfigError, match=re.escape(repr(bad))):
             parse_set([bad])
+
+
+@pytest.mark.parametrize("exc,line", [
+    (FileNotFoundError(2, "No such file or directory", "runs/x.npz"),
+     "prog: error: [Errno 2] No such file or directory: 'runs/x.npz'\n"),
+    (OSError(), "prog: error: OSError\n"),              # no message: the class names it
+    (IsADirectoryError(), "prog: error: IsADirectoryError\n"),
+    (ValueError(""), "prog: error: \n"),                # only an OSError gets its class as message
+])
+def test_runner_prints_the_message_and_names_an_empty_os_error(capsys, exc, line):
+    """The whole line, not only its start (mutation survivors of issue 18)."""
+    assert _main_raising(exc)() == 2
+    assert capsys.readouterr().err == line
