@@ -138,3 +138,11 @@ def test_runner_prints_the_message_and_names_an_empty_os_error(capsys, exc, line
     """The whole line, not only its start (mutation survivors of issue 18)."""
     assert _main_raising(exc)() == 2
     assert capsys.readouterr().err == line
+
+
+def test_exit_statuses_are_the_documented_ones():
+    """docs/DESIGN.md, "Errors and exit statuses": 0 ok, 1 failed run, 2 bad input, 130 Ctrl-C
+    (EXIT_OK is used by no runner here, so only this pins it)."""
+    from knode_swarm_ros.core import errors
+    assert (errors.EXIT_OK, errors.EXIT_RUN_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_INTERRUPTED) == (0, 1, 2, 130)
+    assert cli("prog")(lambda argv=None: errors.EXIT_OK)() == 0
