@@ -574,3 +574,36 @@ def test_reader_rejects_broken_files(tmp_path):
         load_trajectories(write("dims.npz", good[0]))
     with pytest.raises(TrajectoryError, match="scenario"):
         load_trajectories(write("scen.npz", good, "flock4d"))
+
+
+def test_min_separation_is_any_positive_finite_distance():
+    """0.5 (below 1) is accepted; 0, negatives and non-finite values are refused by name."""
+    a = simulate("flock2d", 1, 3, 2, 0, progress=False, min_separation=0.05)
+    assert a.shape == (1, 2, 3, 4) and parameters("flock2d", min_separation=0.5)["min_separation"] == 0.5
+    for bad in (0.0, -0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="min_separation must be a positive number"):
+            parameters("flock2d", min_separation=bad)
+
+
+@pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
+def test_the_progress_bar_total_is_the_number_of_steps_it_counts(monkeypatch, scenario):
+    import knode_swarm_ros.core.groundtruth as G
+    bars = []
+
+    class Bar:
+        def __init__(self, enabled, total, desc):
+            self.total, self.n = total, 0
+            bars.append(self)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def update(self):
+            self.n += 1
+
+    monkeypatch.setattr(G, "_progress_bar", Bar)
+    simulate(scenario, 1, 3, 4, 0, progress=True)
+    assert len(bars) == 1 and bars[0].n == bars[0].total
