@@ -14,8 +14,11 @@ Cost per mutant, and how it is kept small:
   constants and default arguments, code reached only through TorchScript or a child process)
   runs every test of its module instead (``fallback``; when no test runs any line of the module
   inside a test, as for constants or a package ``__init__`` run at collection, the tests whose
-  file names the module), never
-  skipped: an unexecuted mutant that survives is listed as a survivor like any other;
+  file names the module), never skipped: an unexecuted mutant that survives is listed as a
+  survivor like any other;
+- a mutant that survives the tests of its lines is run against the module's other tests before
+  it counts as a survivor (``confirmed``): a memoised result is attributed to the first test
+  that computed it only;
 - torch, numpy and pytest are imported once; each mutant runs ``pytest.main`` in a forked
   child (one torch thread), so no interpreter start per mutant;
 - a mutant whose tests run 5x their measured time + 300 s (room for a loaded machine) is
@@ -221,6 +224,12 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                     rc = 'no mutation'
                 else:
                     rc = _run_tests(tree, tests, budget, log)
+                    if rc == 0 and mode == 'covered':
+                        more = [t for t in _select(cov, module, 0, -1, tree)[0] if t not in set(tests)]
+                        if more:
+                            tests, mode = tests + more, 'confirmed'
+                            rc = _run_tests(tree, more, 5 * sum(cov['durations'].get(t, 1.0) for t in more)
+                                            + 300, log)
                     if rc == 4 and 'ERROR collecting' in log.read_text():
                         rc = 2  # the mutant broke an import: pytest says "no collectors" (4)
             if rc in (0, 1, 2, 3, 'signal'):
