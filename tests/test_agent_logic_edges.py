@@ -99,3 +99,10 @@ def test_a_state_without_a_robot_id_is_recorded_as_robot_minus_one():
     logic = logic_for(SumPolicy())
     assert logic.receive(None, 5, z(0)) == 'unknown_id'
     assert logic.last_drop == ('unknown_id', -1, 5)
+
+
+def test_an_undecodable_message_is_counted_as_received_and_malformed():
+    logic = logic_for(SumPolicy())
+    assert logic.malformed() == 'malformed' and logic.malformed() == 'malformed'
+    assert logic.counters['received'] == 2 and logic.counters['malformed'] == 2
+    assert logic.counters['accepted'] == 0 and logic.last_drop == ('malformed', -1, -1)

@@ -607,3 +607,14 @@ def test_the_progress_bar_total_is_the_number_of_steps_it_counts(monkeypatch, sc
     monkeypatch.setattr(G, "_progress_bar", Bar)
     simulate(scenario, 1, 3, 4, 0, progress=True)
     assert len(bars) == 1 and bars[0].n == bars[0].total
+
+
+def test_boids_parameters_are_checked_at_their_edges():
+    assert B.BoidsParams(num_directions=1).num_directions == 1  # one ray (straight ahead) is enough
+    assert B.BoidsParams(min_speed=3.0, max_speed=3.0).max_speed == 3.0
+    with pytest.raises(ValueError, match="num_directions must be >= 1"):
+        B.BoidsParams(num_directions=0)
+    with pytest.raises(ValueError, match="min_speed <= max_speed"):
+        B.BoidsParams(min_speed=0.0)
+    with pytest.raises(ValueError, match="must exceed bounds_radius"):
+        B.BoidsParams(box=0.27, bounds_radius=0.27)
