@@ -618,3 +618,13 @@ def test_boids_parameters_are_checked_at_their_edges():
         B.BoidsParams(min_speed=0.0)
     with pytest.raises(ValueError, match="must exceed bounds_radius"):
         B.BoidsParams(box=0.27, bounds_radius=0.27)
+
+
+def test_tanner_energy_by_hand_for_any_leading_shape():
+    """Q = 1/2 (sum_{i != j} V(|r_ij|) + sum |v_i|^2), V(r) = 1/r^2 + ln r^2: V(1) = 1. An equilateral
+    triangle of side 1 (6 ordered pairs) with speeds 1, 2, 0: Q = (6 + 5) / 2, whatever the
+    leading dimensions (a frame [n, 4], a batch [S, n, 4], a run [S, T, n, 4])."""
+    tri = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, 2.0], [0.5, math.sqrt(3) / 2, 0.0, 0.0]])
+    assert T.tanner_energy(tri) == pytest.approx(5.5, rel=1e-12)
+    np.testing.assert_allclose(T.tanner_energy(tri[None]), [5.5], rtol=1e-12)
+    np.testing.assert_allclose(T.tanner_energy(np.stack([tri, tri])[None]), [[5.5, 5.5]], rtol=1e-12)
