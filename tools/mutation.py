@@ -219,8 +219,15 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
             budget = 5 * sum(cov['durations'].get(t, 1.0) for t in tests) + 300  # a loaded machine is slow
             log = tree.parent / 'last_mutant.log'
             operator = cosmic_ray.plugins.get_operator(m.operator_name)()
-            with use_mutation(tree / m.module_path, operator, m.occurrence) as (_, mutated):
-                if mutated is None:
+            try:
+                mutation = use_mutation(tree / m.module_path, operator, m.occurrence)
+                mutated = mutation.__enter__()[1]
+            except Exception as exc:  # noqa: BLE001 - an operator that cannot apply (a cosmic-ray bug)
+                mutation, mutated, rc = None, None, f'operator failed: {exc!r}'
+            try:
+                if mutation is None:
+                    pass
+                elif mutated is None:
                     rc = 'no mutation'
                 else:
                     rc = _run_tests(tree, tests, budget, log)
@@ -232,6 +239,9 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                                             + 300, log)
                     if rc == 4 and 'ERROR collecting' in log.read_text():
                         rc = 2  # the mutant broke an import: pytest says "no collectors" (4)
+            finally:
+                if mutation is not None:
+                    mutation.__exit__(None, None, None)  # the original file back
             if rc in (0, 1, 2, 3, 'signal'):
                 outcome = TestOutcome.SURVIVED if rc == 0 else TestOutcome.KILLED
                 result = WorkResult(worker_outcome=WorkerOutcome.NORMAL, test_outcome=outcome,
