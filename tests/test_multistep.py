@@ -287,3 +287,16 @@ def test_windows_never_hold_a_bad_step():
     assert {tuple(x) for x in drawn.tolist()} <= clean
     with pytest.raises(ValueError, match="no window of 11 steps"):
         w.starts(1, 11, None)
+
+
+@pytest.mark.parametrize("lead", [(), (2, 3)])
+def test_torch_neighbour_matrix_equals_the_numpy_builder_for_any_leading_shape(lead):
+    """One snapshot [n, d] and a run [S, T, n, d], not only [S, n, d] (a mutation survivor
+    put the own-state row at a fixed dimension)."""
+    rng = np.random.default_rng(3)
+    z_now, z_del = (_swarm(rng, int(np.prod(lead, dtype=int)), 6, FLOCK).reshape(lead + (6, 4)) for _ in range(2))
+    Y, mask = neighbour_matrix(z_now, z_del, 2, 1.5, 4)
+    Yt, mt = neighbour_matrix_torch(torch.from_numpy(z_now), torch.from_numpy(z_del), 2, 1.5, 4)
+    assert Yt.shape == lead + (6, 4, 4)
+    np.testing.assert_array_equal(Yt.numpy(), Y)
+    np.testing.assert_array_equal(mt.numpy().astype(bool), mask)
