@@ -107,6 +107,16 @@ def test_invalid_config_names_the_field():
         PolicyConfig("flock5d")
 
 
+@pytest.mark.parametrize("field,edge,bad", [
+    ("k", 1, 0), ("d_cr", 1e-9, 0.0), ("tau", 0, -1), ("hidden", 1, 0), ("command_limit", 1e-9, 0.0),
+    ("collision_d0", 1e-9, 0.0), ("wall_d0", 1e-9, 0.0), ("collision_a", 0.0, -1e-9), ("wall_a", 0.0, -1e-9)])
+def test_config_fields_are_checked_at_their_edges(field, edge, bad):
+    """The smallest valid value is accepted (k = 1: the own row only), the next one out refused by name."""
+    assert getattr(PolicyConfig("flock2d", **{field: edge}), field) == edge
+    with pytest.raises(ValueError, match=f"invalid {field} = "):
+        PolicyConfig("flock2d", **{field: bad})
+
+
 # --- the loader refuses every kind of bad file with a message naming the problem ---
 
 @pytest.fixture
