@@ -55,8 +55,8 @@ bench: $(VENV)/.installed
 	  $(ROS_ENV) PYTHONPATH="$(CURDIR)$${PYTHONPATH:+:$$PYTHONPATH}" $(PY) "$$f"; \
 	done; [ $$found = 1 ] || echo "no benchmarks under bench/"
 
-# Mutation testing (not part of CI; hours on 2 cores, see docs/testing.md): cosmic-ray over
-# the core and the *_logic modules, in a copy under out/mutation. MUTATION_ARGS: --only, --sample.
+# Mutation testing (not part of CI; ~6300 mutants, hours on 2 cores, see docs/testing.md): cosmic-ray over
+# the core and the *_logic modules, in a copy under out/mutation. MUTATION_ARGS: --only, --sample, --seed.
 mutation: $(VENV)/.installed
 	$(VENV)/bin/python -m pip install -q -r requirements-mutation.txt
 	$(ROS_ENV) nice -n 10 $(PY) tools/mutation.py $(MUTATION_ARGS)

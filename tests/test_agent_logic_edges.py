@@ -99,3 +99,30 @@ def test_a_state_without_a_robot_id_is_recorded_as_robot_minus_one():
     logic = logic_for(SumPolicy())
     assert logic.receive(None, 5, z(0)) == 'unknown_id'
     assert logic.last_drop == ('unknown_id', -1, 5)
+
+
+def test_an_undecodable_message_is_counted_as_received_and_malformed():
+    logic = logic_for(SumPolicy())
+    assert logic.malformed() == 'malformed' and logic.malformed() == 'malformed'
+    assert logic.counters['received'] == 2 and logic.counters['malformed'] == 2
+    assert logic.counters['accepted'] == 0 and logic.last_drop == ('malformed', -1, -1)
+
+
+def test_an_agent_lagging_its_neighbours_still_finds_their_delayed_states():
+    # tau = 20: the history kept per robot (4 tau + 8 = 88 steps behind its newest) lets an
+    # agent fall 50 steps behind its neighbours and still use their states of step s - tau
+    # (a 64-step history would have pruned them and silently used step 86's instead of 80's).
+    policy = SumPolicy(tau=20)
+    logic = logic_for(policy, state_timeout=0.5)
+    dt = policy.dt
+    state = lambda s, r: z(r + 0.01 * s, 0.1 * r)  # noqa: E731
+    for s in range(0, 151):
+        for r in (1, 2, 3):
+            logic.receive(r, stamp_ns(s, dt), state(s, r), wall=0.0)
+    for s in range(0, 101):
+        logic.receive(0, stamp_ns(s, dt), state(s, 0), wall=0.0)
+    cmd = logic.lockstep_poll(0.0)
+    assert cmd is not None and cmd.step == 100
+    Z = np.stack([state(80, r) for r in range(4)])
+    Y, _ = neighbour_matrix_single(0, state(100, 0), Z, 2, policy.d_cr, policy.k)
+    np.testing.assert_array_equal(policy.calls[-1][0][0], Y)

@@ -126,3 +126,24 @@ def test_parse_set():
     for bad in ("training.epochs", "=3", "a.b=[1, 2"):
         with pytest.raises(ConfigError, match=re.escape(repr(bad))):
             parse_set([bad])
+
+
+@pytest.mark.parametrize("exc,line", [
+    (FileNotFoundError(2, "No such file or directory", "runs/x.npz"),
+     "prog: error: [Errno 2] No such file or directory: 'runs/x.npz'\n"),
+    (OSError(), "prog: error: OSError\n"),              # no message: the class names it
+    (IsADirectoryError(), "prog: error: IsADirectoryError\n"),
+    (ValueError(""), "prog: error: \n"),                # only an OSError gets its class as message
+])
+def test_runner_prints_the_message_and_names_an_empty_os_error(capsys, exc, line):
+    """The whole line, not only its start (mutation survivors of issue 18)."""
+    assert _main_raising(exc)() == 2
+    assert capsys.readouterr().err == line
+
+
+def test_exit_statuses_are_the_documented_ones():
+    """docs/DESIGN.md, "Errors and exit statuses": 0 ok, 1 failed run, 2 bad input, 130 Ctrl-C
+    (EXIT_OK is used by no runner here, so only this pins it)."""
+    from knode_swarm_ros.core import errors
+    assert (errors.EXIT_OK, errors.EXIT_RUN_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_INTERRUPTED) == (0, 1, 2, 130)
+    assert cli("prog")(lambda argv=None: errors.EXIT_OK)() == 0

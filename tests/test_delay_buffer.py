@@ -1,5 +1,6 @@
 """The agent's delay buffer: gaps, out-of-order messages, the earliest-state rule."""
 import numpy as np
+import pytest
 
 from knode_swarm_ros.core import DelayBuffer
 
@@ -52,3 +53,22 @@ def test_forget_and_robots():
     assert buf.robots() == [1, 3]
     buf.forget(3)
     assert buf.robots() == [1] and buf.latest(3) is None
+
+
+def test_exactly_the_horizon_plus_the_entry_at_the_cut_is_kept():
+    """After every add the history holds exactly steps newest - horizon .. newest (the entry at
+    the cut keeps lookups inside the horizon working): not one more, not one fewer."""
+    buf = DelayBuffer(dt=1.0, tau=1, horizon=3)
+    for s in range(10):
+        buf.add(0, float(s), [float(s)])
+        kept = [t for t in range(s + 1) if buf.get(0, t) is not None]
+        assert kept == list(range(max(0, s - 3), s + 1)), s
+
+
+def test_a_step_of_zero_or_less_and_a_negative_delay_are_refused():
+    for dt in (0.0, -0.1):
+        with pytest.raises(ValueError, match='dt must be > 0'):
+            DelayBuffer(dt=dt)
+    with pytest.raises(ValueError, match='tau must be >= 0'):
+        DelayBuffer(dt=0.1, tau=-1)
+    assert DelayBuffer(dt=0.1, tau=0).tau == 0

@@ -574,3 +574,57 @@ def test_reader_rejects_broken_files(tmp_path):
         load_trajectories(write("dims.npz", good[0]))
     with pytest.raises(TrajectoryError, match="scenario"):
         load_trajectories(write("scen.npz", good, "flock4d"))
+
+
+def test_min_separation_is_any_positive_finite_distance():
+    """0.5 (below 1) is accepted; 0, negatives and non-finite values are refused by name."""
+    a = simulate("flock2d", 1, 3, 2, 0, progress=False, min_separation=0.05)
+    assert a.shape == (1, 2, 3, 4) and parameters("flock2d", min_separation=0.5)["min_separation"] == 0.5
+    for bad in (0.0, -0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="min_separation must be a positive number"):
+            parameters("flock2d", min_separation=bad)
+
+
+@pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])
+def test_the_progress_bar_total_is_the_number_of_steps_it_counts(monkeypatch, scenario):
+    import knode_swarm_ros.core.groundtruth as G
+    bars = []
+
+    class Bar:
+        def __init__(self, enabled, total, desc):
+            self.total, self.n = total, 0
+            bars.append(self)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def update(self):
+            self.n += 1
+
+    monkeypatch.setattr(G, "_progress_bar", Bar)
+    simulate(scenario, 1, 3, 4, 0, progress=True)
+    assert len(bars) == 1 and bars[0].n == bars[0].total
+
+
+def test_boids_parameters_are_checked_at_their_edges():
+    assert B.BoidsParams(num_directions=1).num_directions == 1  # one ray (straight ahead) is enough
+    assert B.BoidsParams(min_speed=3.0, max_speed=3.0).max_speed == 3.0
+    with pytest.raises(ValueError, match="num_directions must be >= 1"):
+        B.BoidsParams(num_directions=0)
+    with pytest.raises(ValueError, match="min_speed <= max_speed"):
+        B.BoidsParams(min_speed=0.0)
+    with pytest.raises(ValueError, match="must exceed bounds_radius"):
+        B.BoidsParams(box=0.27, bounds_radius=0.27)
+
+
+def test_tanner_energy_by_hand_for_any_leading_shape():
+    """Q = 1/2 (sum_{i != j} V(|r_ij|) + sum |v_i|^2), V(r) = 1/r^2 + ln r^2: V(1) = 1. An equilateral
+    triangle of side 1 (6 ordered pairs) with speeds 1, 2, 0: Q = (6 + 5) / 2, whatever the
+    leading dimensions (a frame [n, 4], a batch [S, n, 4], a run [S, T, n, 4])."""
+    tri = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, 2.0], [0.5, math.sqrt(3) / 2, 0.0, 0.0]])
+    assert T.tanner_energy(tri) == pytest.approx(5.5, rel=1e-12)
+    np.testing.assert_allclose(T.tanner_energy(tri[None]), [5.5], rtol=1e-12)
+    np.testing.assert_allclose(T.tanner_energy(np.stack([tri, tri])[None]), [[5.5, 5.5]], rtol=1e-12)

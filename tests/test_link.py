@@ -138,3 +138,13 @@ def test_link_rollout_forgets_peers_silent_longer_than_the_timeout():
     assert not any(mask[:, 1:].any() for _, mask in log)              # nothing arrives, nobody is heard
     with pytest.raises(ValueError, match='whole steps'):
         link_rollout(_recording_policy([]), z0, 3, 'flock2d', 1.0, 3, 0, 0.01, LinkConfig(delay=0.5))
+
+
+def test_a_radio_range_below_one_metre_is_applied():
+    """Any positive range counts (mutation survivor: only ranges above 1 were applied); the edge
+    itself (distance == range) is in range."""
+    model = LinkModel(LinkConfig(range=0.5))
+    assert model.fate([0.0, 0.0], [0.3, 0.4])[0] == 'delivered'        # exactly 0.5 apart
+    assert model.fate([0.0, 0.0], [0.3, 0.41])[0] == 'out_of_range'
+    assert model.fate([0.0, 0.0], None)[0] == 'delivered'               # no positions: no range check
+    assert model.counters == {'offered': 3, 'out_of_range': 1, 'lost': 0, 'delivered': 2}

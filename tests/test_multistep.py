@@ -298,3 +298,16 @@ def test_velocity_weight_scales_only_the_velocity_errors():
                                torch.tensor([[1.0, 1.0, 0.5, 0.5]] * 2))
     boids = get_scenario("boids3d")                                # velocity commands: no velocity entries
     torch.testing.assert_close(window_scales(boids, 0.1, 2, "command", 1.0, 9.0), window_scales(boids, 0.1, 2, "command"))
+
+
+@pytest.mark.parametrize("lead", [(), (2, 3)])
+def test_torch_neighbour_matrix_equals_the_numpy_builder_for_any_leading_shape(lead):
+    """One snapshot [n, d] and a run [S, T, n, d], not only [S, n, d] (a mutation survivor
+    put the own-state row at a fixed dimension)."""
+    rng = np.random.default_rng(3)
+    z_now, z_del = (_swarm(rng, int(np.prod(lead, dtype=int)), 6, FLOCK).reshape(lead + (6, 4)) for _ in range(2))
+    Y, mask = neighbour_matrix(z_now, z_del, 2, 1.5, 4)
+    Yt, mt = neighbour_matrix_torch(torch.from_numpy(z_now), torch.from_numpy(z_del), 2, 1.5, 4)
+    assert Yt.shape == lead + (6, 4, 4)
+    np.testing.assert_array_equal(Yt.numpy(), Y)
+    np.testing.assert_array_equal(mt.numpy().astype(bool), mask)

@@ -107,6 +107,16 @@ def test_invalid_config_names_the_field():
         PolicyConfig("flock5d")
 
 
+@pytest.mark.parametrize("field,edge,bad", [
+    ("k", 1, 0), ("d_cr", 1e-9, 0.0), ("tau", 0, -1), ("hidden", 1, 0), ("command_limit", 1e-9, 0.0),
+    ("collision_d0", 1e-9, 0.0), ("wall_d0", 1e-9, 0.0), ("collision_a", 0.0, -1e-9), ("wall_a", 0.0, -1e-9)])
+def test_config_fields_are_checked_at_their_edges(field, edge, bad):
+    """The smallest valid value is accepted (k = 1: the own row only), the next one out refused by name."""
+    assert getattr(PolicyConfig("flock2d", **{field: edge}), field) == edge
+    with pytest.raises(ValueError, match=f"invalid {field} = "):
+        PolicyConfig("flock2d", **{field: bad})
+
+
 # --- the loader refuses every kind of bad file with a message naming the problem ---
 
 @pytest.fixture
@@ -235,3 +245,24 @@ def test_export_is_atomic_and_keeps_the_old_file_on_failure(tmp_path, good):
         export_policy(good[0], good[1], meta)
     assert good[1].read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["good.pt"]
+
+
+def test_expected_text_values_must_be_equal_not_merely_ordered():
+    """A boids3d file where flock2d is required is refused although "boids3d" < "flock2d"
+    (mutation survivor: only files whose text sorted after the required one were refused)."""
+    from knode_swarm_ros.core.policy_meta import check_meta
+    meta = make_policy("boids3d").metadata()
+    check_meta("p.pt", meta, expect={"scenario": "boids3d"})
+    for other in ("flock2d", "zeta"):
+        with pytest.raises(PolicyError, match="'scenario'"):
+            check_meta("p.pt", meta, expect={"scenario": other})
+
+
+def test_command_limit_bounds_are_open_at_zero_only():
+    from knode_swarm_ros.core.policy_meta import check_meta
+    meta = make_policy().metadata()
+    for ok in (1e-3, 0.5, 1e9):
+        check_meta("p.pt", dict(meta, command_limit=ok))
+    for bad in (0.0, -1.0, 1e9 * 1.5):
+        with pytest.raises(PolicyError, match="'command_limit' has invalid value"):
+            check_meta("p.pt", dict(meta, command_limit=bad))

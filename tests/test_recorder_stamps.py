@@ -74,3 +74,21 @@ def test_a_stray_frame_off_the_publishing_grid_does_not_shift_the_grid(tmp_path)
     assert info['first_step'] == 0 and states.shape[0] == 11
     assert np.array_equal(states[3], truth[15])
     assert fc.progress == 50
+
+
+def test_every_counter_is_the_number_of_times_its_outcome_was_returned():
+    """Each message lands in exactly one counter, starting from zero (mutation survivors: a
+    counter starting at -1 went unnoticed)."""
+    from collections import Counter
+    fc = FrameCollector('flock2d', 3, DT)
+    assert set(fc.counters.values()) == {0}
+    now = 50 * int(DT * NS)
+    stamp = lambda s: int(round(s * DT * NS))  # noqa: E731
+    messages = [(0, stamp(50), np.zeros(4)), (1, stamp(50), np.ones(4)), (0, stamp(50), np.ones(4)),
+                (2, stamp(49), np.zeros(4)), (7, stamp(50), np.zeros(4)), (1, stamp(50), np.zeros(3)),
+                (2, stamp(50), np.array([0, np.nan, 0, 0])), (2, -NS, np.zeros(4)),
+                (2, now + 10 * NS, np.zeros(4)), (2, stamp(50) + int(DT * NS) // 2, np.zeros(4))]
+    returned = Counter(fc.receive(r, t, z, now) for r, t, z in messages)
+    assert returned == Counter({'accepted': 3, 'duplicate': 1, 'unknown_id': 1, 'bad_size': 1,
+                                'non_finite': 1, 'too_old': 1, 'too_future': 1, 'off_grid': 1})
+    assert fc.counters == {k: returned.get(k, 0) for k in fc.counters}

@@ -1,4 +1,6 @@
 """The canonical rollout: exact zero-order-hold integration and the delay rule."""
+import re
+
 import numpy as np
 import pytest
 
@@ -106,6 +108,9 @@ def test_any_swarm_size_and_bad_shapes():
         assert rollout(zero_policy(2), np.zeros((n, 4)), 2, "flock2d", 5.0, 6, 0, 0.01).shape == (3, n, 4)
     with pytest.raises(ValueError, match="z0"):
         rollout(zero_policy(2), np.zeros((3, 6)), 2, "flock2d", 5.0, 6, 0, 0.01)
+    for shape in ((4,), (1, 2, 3, 4)):  # the message gives the shape as passed in
+        with pytest.raises(ValueError, match=re.escape(f"got {shape}")):
+            rollout(zero_policy(2), np.zeros(shape), 2, "flock2d", 5.0, 6, 0, 0.01)
 
 
 @pytest.mark.parametrize("scenario", ["flock2d", "boids3d"])

@@ -145,3 +145,23 @@ def test_dt_mismatch_names_both_values():
     assert '0.02' in text and '0.01' in text
     logic = AgentLogic(AgentConfig(0, [0], mode='lockstep'), HugePolicy())
     assert logic.status()['dt'] == HugePolicy().dt
+
+
+def test_limits_and_stop_arguments_are_checked_at_their_edges():
+    """Mutation survivors (issue 18): every limit in (0, inf) is accepted as given, everything
+    else refused; an unknown command kind is refused whatever its spelling sorts like; dt must be
+    finite and > 0."""
+    assert effective_limit(0.5) == 0.5 and effective_limit(None, 0.25) == 0.25  # below 1 is fine
+    for bad in (-0.5, float('inf'), float('nan')):
+        with pytest.raises(ValueError, match='policy command_limit'):
+            effective_limit(bad)
+        with pytest.raises(ValueError, match='requested command_limit'):
+            effective_limit(10.0, bad)
+    v = np.array([[2.0, -1.0]])
+    for kind in ('aardvark', 'zebra', 'Velocity'):  # sorts before, after, between the two
+        with pytest.raises(ValueError, match='unknown command kind'):
+            stop_command(kind, v, None, 0.1)
+    for dt in (0.0, -0.1, float('inf'), float('nan')):
+        with pytest.raises(ValueError, match='dt must be > 0'):
+            stop_command('acceleration', v, None, dt)
+    np.testing.assert_array_equal(stop_command('acceleration', v, None, 0.5), [[-4.0, 2.0]])

@@ -28,6 +28,7 @@ def test_single_frame_is_valid(tmp_path):
 
 @pytest.mark.parametrize("x,dt,scenario,message", [
     (states(d=6), 0.01, "flock2d", "d = 6"),
+    (states(d=3), 0.01, "flock2d", "d = 3"),                 # too few entries as well as too many
     (states()[0], 0.01, "flock2d", r"\[trajectories, T, n, d\]"),
     (states(), 0.0, "flock2d", "'dt'"),
     (states(), 0.01, "swarm9d", "'scenario'"),
@@ -69,3 +70,15 @@ def test_failed_write_keeps_the_previous_file(tmp_path):
 def test_parse_trajectory_ref():
     assert parse_trajectory_ref("data/x.npz:7") == ("data/x.npz", 7)
     assert parse_trajectory_ref("data/x.npz") == ("data/x.npz", 0)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_a_written_file_has_the_usual_permissions(tmp_path, umask):
+    """0666 less the umask (not mkstemp's 0600), whatever the umask."""
+    import os
+    old = os.umask(umask)
+    try:
+        save_trajectories(tmp_path / "t.npz", states(), 0.01, "flock2d")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "t.npz").stat().st_mode & 0o777 == 0o666 & ~umask
