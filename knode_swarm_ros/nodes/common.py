@@ -27,11 +27,11 @@ __all__ = [
     'step_of', 'percentiles', 'status_json', 'parse_status', 'robot_id_list', 'dt_mismatch']
 
 #: Exit statuses of the executables.
-EXIT_OK = 0
-EXIT_FAILURE = 1        # failed while running (a process died, a timeout, an I/O error)
-EXIT_CONFIG = 2         # refused to start: a bad parameter, argument or policy file
+# The exit statuses are core's (one table for every executable); the nodes' names for them:
+from ..core.errors import EXIT_BAD_INPUT as EXIT_CONFIG  # noqa: E402  refused to start: bad parameter/policy
+from ..core.errors import EXIT_INTERRUPTED, EXIT_OK  # noqa: E402
+from ..core.errors import EXIT_RUN_FAILED as EXIT_FAILURE  # noqa: E402  a process died, a timeout, I/O
 EXIT_AGENT_LOST = 3     # swarm: the run completed but at least one agent process died
-EXIT_INTERRUPTED = 130  # swarm: stopped by Ctrl-C / SIGTERM
 
 #: Simulator / agent modes.
 MODES = ('lockstep', 'realtime')
