@@ -29,7 +29,8 @@ Figures, each against a baseline of the same run:
   :func:`core.rollout` from the recorded initial state (max difference; 0 = bit for bit) and vs
   the ground truth (Tanner) from the same state: avd/amd at the end and over the last 10 %.
 
-Uses the shipped flock2d policy unless ``--policy``, on TorchScript unless ``--policy-runtime``
+Uses the shipped flock2d policy (realtime: the one for 20 Hz, as ``swarm`` deploys) unless
+``--policy``, on TorchScript unless ``--policy-runtime``
 (the offline rollout is torch: only TorchScript agents reproduce it bit for bit). PSS is read
 from /proc/<pid>/smaps_rollup. The full measurement (about 60 to 90 minutes on a quiet 2-core
 machine): ``python bench/bench_scale.py --robots 10,20,50,100,200 --steps 2000 --seconds 60
@@ -340,13 +341,18 @@ def main(argv=None) -> int:
                       flush=True)
             results[f'lockstep_{n}'] = rows
     if 'realtime' in only:
-        print(f'\n## realtime at 20 Hz, {a.seconds:g} s simulated, hosted')
+        # As `swarm --mode realtime` deploys: the policy trained for the control rate (issue 19)
+        from knode_swarm_ros.core.policy_meta import read_pt_meta
+        from knode_swarm_ros.nodes.control_period import shipped_policy_for_rate
+        rt_policy = a.policy or str(shipped_policy_for_rate('flock2d', 20.0)[0])
+        rt_dt = float(read_pt_meta(rt_policy)['dt'])
+        print(f'\n## realtime at 20 Hz, {a.seconds:g} s simulated, hosted, policy {rt_policy} (dt {rt_dt:g} s)')
         print(f'{"robots":>6} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} {"PSS MB":>8} rc', flush=True)
         for n in counts:
             from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
             k = resolve(a.agents_per_process, n)
-            steps = int(round(a.seconds / 0.01))
-            r = run_swarm(['--policy', policy, '--robots', n, '--steps', steps, '--mode', 'realtime', '--rate', 20,
+            steps = int(round(a.seconds / rt_dt))
+            r = run_swarm(['--policy', rt_policy, '--robots', n, '--steps', steps, '--mode', 'realtime', '--rate', 20,
                            '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
                            '--record', tmp / f'realtime_{n}.npz'], tmp / f'realtime_{n}', a.timeout)
             rep = r['report']
