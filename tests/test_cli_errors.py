@@ -45,6 +45,7 @@ CASES = [
     ("scaling3d", "--merge {tmp}/missing.json --out {tmp}/out", "missing.json"),
     ("crowding", "{tmp}/missing.json", "missing.json"),
     ("unicycle_study", "--policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
+    ("provenance", "{tmp}/missing.pt --data data/flock2d.npz", "missing.pt"),
     ("demo", "--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
 ]
 
