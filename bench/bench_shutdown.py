@@ -39,6 +39,7 @@ sys.path.insert(0, str(REPO))
 
 from knode_swarm_ros.nodes.swarm import shm  # noqa: E402
 from knode_swarm_ros.nodes.domains import claim_domain  # noqa: E402
+from knode_swarm_ros.nodes.swarm.processes import catches_signal  # noqa: E402
 
 ROBOTS = 3
 READY = {'agent': 'heard all 3 robots: ready', 'agents': 'heard all 3 robots: ready', 'simulator': ': running',
@@ -69,15 +70,6 @@ def _held(proc) -> set:
     return held
 
 
-def _catches_sigterm(pid) -> bool:
-    """Whether the process handles SIGTERM itself: the package's handler is installed (before it,
-    interpreter start-up and site, SIGTERM kills silently and SIGINT raises KeyboardInterrupt)."""
-    try:
-        with open(f'/proc/{pid}/status') as fh:
-            caught = next(int(line.split()[1], 16) for line in fh if line.startswith('SigCgt:'))
-    except (OSError, StopIteration):
-        return False
-    return bool(caught & (1 << (signal.SIGTERM - 1)))
 
 
 def one_start_stop(name, args, env, sig, tmp: Path, delay: float):
@@ -86,10 +78,18 @@ def one_start_stop(name, args, env, sig, tmp: Path, delay: float):
     log_path = tmp / f'{name}_start.log'
     with open(log_path, 'wb') as log:
         proc = _node(name, args, env, log)
-    while proc.poll() is None and not _catches_sigterm(proc.pid):
+    while proc.poll() is None and not catches_signal(proc.pid):
         time.sleep(0.001)
     time.sleep(delay)
     held = shm.shm_held_by(proc.pid)
+    rc, stop_s, text, note = _signal_and_wait(proc, sig, log_path)
+    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by({n for n in held if 'port' not in n}),
+            'held': held, 'note': note, 'traceback': 'Traceback' in text}
+
+
+def _signal_and_wait(proc, sig, log_path: Path):
+    """Send ``sig``, wait for the exit (kill after 30 s): ``(rc, stop seconds, log text, note)``;
+    the note is the log's tail when the stop was not clean."""
     t0 = time.monotonic()
     proc.send_signal(sig)
     try:
@@ -99,9 +99,7 @@ def one_start_stop(name, args, env, sig, tmp: Path, delay: float):
         rc = proc.wait()
     stop_s = time.monotonic() - t0
     text = log_path.read_text(errors='replace')
-    note = text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
-    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by({n for n in held if 'port' not in n}),
-            'held': held, 'note': note, 'traceback': 'Traceback' in text}
+    return rc, stop_s, text, text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
 
 
 def one_stop(name, args, env, domain, sig, tmp: Path, rng):
@@ -118,16 +116,7 @@ def one_stop(name, args, env, domain, sig, tmp: Path, rng):
     ready_s = time.monotonic() - t_start
     held = _held(proc)
     time.sleep(rng.uniform(0.0, 0.3))
-    t0 = time.monotonic()
-    proc.send_signal(sig)
-    try:
-        rc = proc.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        rc = proc.wait()
-    stop_s = time.monotonic() - t0
-    text = log_path.read_text(errors='replace')
-    note = text[-1500:] if rc != 0 or 'Traceback' in text or 'Aborted' in text else ''
+    rc, stop_s, _, note = _signal_and_wait(proc, sig, log_path)
     segment = {n for n in held if 'port' not in n}
     return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by(segment, domain), 'held': held, 'note': note,
             'ready_s': ready_s}

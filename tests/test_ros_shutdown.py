@@ -17,6 +17,8 @@ import pytest
 
 import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
+from knode_swarm_ros.nodes.swarm.processes import catches_signal  # noqa: E402
+
 pytestmark = pytest.mark.ros
 
 WAIT_S = 120  # generous: only a hang fails
@@ -50,15 +52,6 @@ def _stop(proc, sig, log_path):
     return rc, log_path.read_text(errors='replace')
 
 
-def _catches_sigterm(pid) -> bool:
-    """Whether the process has a SIGTERM handler (Python has none by default: the quiet start-up
-    handler of knode_swarm_ros.nodes.startup, then rclpy's, are the ones)."""
-    try:
-        with open(f'/proc/{pid}/status') as fh:
-            caught = next(int(line.split()[1], 16) for line in fh if line.startswith('SigCgt:'))
-    except (OSError, StopIteration):
-        return False
-    return bool(caught & (1 << (signal.SIGTERM - 1)))
 
 
 @pytest.mark.parametrize('node', ['agent', 'agents', 'simulator', 'recorder'])
@@ -77,7 +70,7 @@ def test_a_signal_at_any_moment_gives_a_clean_exit(node, tmp_path, untrained_pol
     with open(log_path, 'wb') as log:
         proc = _start(node, args, log)
     deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline and proc.poll() is None and not _catches_sigterm(proc.pid):
+    while time.monotonic() < deadline and proc.poll() is None and not catches_signal(proc.pid):
         time.sleep(0.001)
     rc, text = _stop(proc, signal.SIGINT, log_path)
     assert rc == 0 and 'Traceback' not in text, f'rc {rc}\n{text}'

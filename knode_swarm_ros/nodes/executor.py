@@ -152,20 +152,13 @@ def _abandon_in_place(frame) -> None:
     node needs saving: destroy it and the context (the DDS participant and its /dev/shm files)
     from here, then end the process with EXIT_OK.
     """
-    half_built = None
-    while frame is not None:  # the outermost node constructor on the stack
-        candidate = frame.f_locals.get('self')
-        if isinstance(candidate, Node) and frame.f_code.co_name == '__init__':
-            half_built = candidate
+    frames = []
+    while frame is not None:
+        frames.append(frame)
         frame = frame.f_back
     try:
-        if half_built is not None:
-            try:
-                destroy_node(half_built)
-            except Exception:  # noqa: BLE001 - rclpy's part fails on what was never made
-                pass
-        rclpy.try_shutdown()
-        rclpy.get_default_context().destroy()
+        _free_half_built(_outermost_node_init(reversed(frames)))
+        _end_context()
     finally:
         _end_process(EXIT_OK)
 
@@ -210,16 +203,40 @@ def destroy_node(node: Node) -> None:
                 part.destroy_when_not_in_use()
 
 
+def _outermost_node_init(frames) -> Optional[Node]:
+    """The ``self`` of the outermost node constructor among ``frames`` (outermost first)."""
+    for frame in frames:
+        candidate = frame.f_locals.get('self')
+        if isinstance(candidate, Node) and frame.f_code.co_name == '__init__':
+            return candidate
+    return None
+
+
 def _node_under_construction(tb) -> Optional[Node]:
     """The node whose ``__init__`` an exception (a signal, a bad parameter) cut short: the
     ``self`` of the outermost constructor frame in the traceback. It already owns a node handle
     (and so the DDS participant); unless destroyed, it keeps them past the context's end."""
+    frames = []
     while tb is not None:
-        candidate = tb.tb_frame.f_locals.get('self')
-        if isinstance(candidate, Node) and tb.tb_frame.f_code.co_name == '__init__':
-            return candidate
+        frames.append(tb.tb_frame)
         tb = tb.tb_next
-    return None
+    return _outermost_node_init(frames)
+
+
+def _free_half_built(node: Optional[Node]) -> None:
+    """Destroy a node whose construction was cut short (no ``on_exit``: nothing of it is saved)."""
+    if node is None:
+        return
+    try:
+        destroy_node(node)
+    except Exception:  # noqa: BLE001 - rclpy's part fails on what was never made; the handle went
+        pass
+
+
+def _end_context() -> None:
+    """Shut down and destroy the default context: the DDS participant (and its /dev/shm files) go now."""
+    rclpy.try_shutdown()
+    rclpy.get_default_context().destroy()
 
 
 def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node], None], args=None) -> None:
@@ -286,15 +303,8 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
                 except OSError as exc:
                     print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
                 destroy_node(node)
-            if half_built is not None:
-                try:
-                    destroy_node(half_built)
-                except Exception:  # noqa: BLE001 - rclpy's part fails on what was never made; the handle went
-                    pass
-                half_built = None
-            rclpy.try_shutdown()
-            # The DDS participant (and its /dev/shm files) goes with the context, now.
-            rclpy.get_default_context().destroy()
+            _free_half_built(half_built)
+            _end_context()
     _end_process(code)
 
 

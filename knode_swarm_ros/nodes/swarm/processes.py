@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
-__all__ = ['Child', 'Children', 'start_child', 'Interrupted']
+__all__ = ['Child', 'Children', 'start_child', 'Interrupted', 'catches_signal']
 
 # SIGTERM first: the nodes treat it as Ctrl-C once running (the recorder saves), and a process
 # still importing ends silently (a SIGINT there could print a KeyboardInterrupt traceback).
@@ -171,3 +171,15 @@ class Children:
             except OSError:
                 pass
         self.selector.close()
+
+
+def catches_signal(pid: int, sig: int = signal.SIGTERM) -> bool:
+    """Whether process ``pid`` handles ``sig`` itself (``SigCgt`` in /proc/<pid>/status): before
+    the package's start-up handler exists (interpreter start and site) SIGTERM kills silently and
+    SIGINT raises KeyboardInterrupt. False once the process is gone."""
+    try:
+        with open(f'/proc/{pid}/status') as fh:
+            caught = next(int(line.split()[1], 16) for line in fh if line.startswith('SigCgt:'))
+    except (OSError, StopIteration):
+        return False
+    return bool(caught & (1 << (sig - 1)))
