@@ -19,6 +19,8 @@ from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
 from knode_swarm_ros.nodes.common import ConfigError
 from knode_swarm_ros.nodes.control_period import check_control_period
 
+from test_training import linear_teacher, spy_on_selection_rollouts
+
 FLOCK = get_scenario('flock2d')
 SEC = 1_000_000_000
 
@@ -148,13 +150,7 @@ def _held_teacher_data(tmp_path, hold=5, steps=40, trajectories=5, n=6, seed=0):
     (a 20 Hz controller for hold 5): the ground truth of a policy with dt = hold * 0.01."""
     from knode_swarm_ros.core import save_trajectories, zoh_step
     from knode_swarm_ros.core.rollout import policy_commands
-
-    def linear(Y, mask):
-        m = mask[:, 1:, None]
-        count = np.maximum(m.sum(1), 1)
-        dv = ((Y[:, 1:, 2:] - Y[:, :1, 2:]) * m).sum(1) / count
-        dp = ((Y[:, 1:, :2] - Y[:, :1, :2]) * m).sum(1) / count
-        return 1.5 * dv + 0.5 * dp
+    linear = linear_teacher
     rng = np.random.default_rng(seed)
     z = np.concatenate([rng.uniform(-2, 2, (trajectories, n, 2)), rng.normal(0, 1, (trajectories, n, 2))], -1)
     frames = [z]
@@ -206,17 +202,8 @@ def test_trainer_selection_rolls_out_at_the_policy_dt_and_bad_policy_dt_exits_2(
            'selection': {'every': 1, 'trajectories': 1}}
     trainer = Trainer(normalise_config(raw), data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
     seen = {}
-    import training.trainer as train_module
-    real = train_module.rollout_module
-
-    def spy(module, spec, z0, steps, cfg_policy, dt):
-        seen.update(steps=steps, dt=dt)
-        return real(module, spec, z0, steps, cfg_policy, dt)
-    train_module.rollout_module = spy
-    try:
+    with spy_on_selection_rollouts(lambda z0, steps, dt: seen.update(steps=steps, dt=dt)):
         trainer.run()
-    finally:
-        train_module.rollout_module = real
     assert seen == {'steps': 8, 'dt': 0.05}            # 41 frames at 0.01 s = 9 frames at 0.05 s
     cfg = tmp_path / 'cfg.yaml'
     raw['data']['policy_dt'] = 0.025

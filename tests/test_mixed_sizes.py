@@ -14,7 +14,7 @@ from training.samples import make_samples
 from training.train import main as train_main
 from training.trainer import Trainer
 
-from test_training import _config, _teacher_data
+from test_training import _config, _teacher_data, spy_on_selection_rollouts
 
 torch.set_num_threads(1)
 
@@ -54,17 +54,8 @@ def test_mixed_sizes_selection_rolls_out_every_size(tmp_path):
     _, cfg = _config(tmp_path, training={"epochs": 1}, selection={"every": 1, "trajectories": 1})
     trainer = Trainer(cfg, paths, str(tmp_path / "run"), progress=False, log=lambda *a: None)
     seen = []
-    import training.trainer as train_module
-    real = train_module.rollout_module
-
-    def spy(module, spec, z0, steps, cfg_policy, dt):
-        seen.append(z0.shape)
-        return real(module, spec, z0, steps, cfg_policy, dt)
-    train_module.rollout_module = spy
-    try:
+    with spy_on_selection_rollouts(lambda z0, steps, dt: seen.append(z0.shape)):
         trainer.run()
-    finally:
-        train_module.rollout_module = real
     assert seen == [(1, 5, 4), (1, 9, 4)]
     assert len(trainer.best["metrics"]) and trainer.best["epoch"] == 1
 

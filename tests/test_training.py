@@ -2,6 +2,7 @@
 
 Tiny data only (a few hundred samples); the whole module runs in a few seconds.
 """
+import contextlib
 import json
 import os
 
@@ -50,14 +51,34 @@ def _config(tmp_path, **sections):
         return str(path), None
 
 
+def linear_teacher(Y, mask):
+    """A linear decentralised controller: alignment + cohesion on the neighbour rows of Y."""
+    m = mask[:, 1:, None]
+    count = np.maximum(m.sum(1), 1)
+    dv = ((Y[:, 1:, 2:] - Y[:, :1, 2:]) * m).sum(1) / count
+    dp = ((Y[:, 1:, :2] - Y[:, :1, :2]) * m).sum(1) / count
+    return 1.5 * dv + 0.5 * dp
+
+
+@contextlib.contextmanager
+def spy_on_selection_rollouts(record):
+    """Within the block, the trainer's selection rollouts call ``record(z0, steps, dt)`` first."""
+    import training.trainer as train_module
+    real = train_module.rollout_module
+
+    def spy(module, spec, z0, steps, cfg_policy, dt):
+        record(z0, steps, dt)
+        return real(module, spec, z0, steps, cfg_policy, dt)
+    train_module.rollout_module = spy
+    try:
+        yield
+    finally:
+        train_module.rollout_module = real
+
+
 def _teacher_data(tmp_path, steps=40, trajectories=4, n=5, seed=0):
-    """Trajectories of a linear decentralised controller (alignment + cohesion on the neighbour rows)."""
-    def linear(Y, mask):
-        m = mask[:, 1:, None]
-        count = np.maximum(m.sum(1), 1)
-        dv = ((Y[:, 1:, 2:] - Y[:, :1, 2:]) * m).sum(1) / count
-        dp = ((Y[:, 1:, :2] - Y[:, :1, :2]) * m).sum(1) / count
-        return 1.5 * dv + 0.5 * dp
+    """Trajectories of :func:`linear_teacher`."""
+    linear = linear_teacher
     z0 = _swarm(np.random.default_rng(seed), trajectories, n, FLOCK)
     states = rollout(linear, z0, steps - 1, "flock2d", 3.0, 4, 0, 0.01)
     path = tmp_path / "teacher.npz"
