@@ -90,10 +90,10 @@ class _Interrupts:
     def _note(self, signum, frame) -> None:
         self.signal = signum
         if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
-            if _inside_torch(frame):
-                _abandon_in_place(frame)  # no unwinding through torch's C++; does not return
             if not _safe_to_raise(frame):
-                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)  # try again from a later frame
+                if _inside_torch(frame):
+                    _abandon_in_place(frame)  # no unwinding through torch's C++; does not return
+                signal.setitimer(signal.ITIMER_REAL, _RETRY_S)  # importlib: try again from a later frame
                 return
             self.raising = False
             raise _StartupInterrupted()
@@ -127,12 +127,7 @@ def _safe_to_raise(frame) -> bool:
     """
     if frame is not None and frame.f_code.co_filename == _IMPORT_MACHINERY:
         return False
-    while frame is not None:
-        code = frame.f_code
-        if '/torch/' in code.co_filename:
-            return False
-        frame = frame.f_back
-    return True
+    return not _inside_torch(frame)
 
 
 def _inside_torch(frame) -> bool:
