@@ -9,14 +9,12 @@ import json
 import os
 import signal
 
-import numpy as np
 import pytest
 
 import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
-from knode_swarm_ros.core import load_policy, load_trajectories  # noqa: E402
-from knode_swarm_ros.core.rollout import rollout  # noqa: E402
-from test_ros_swarm import Launcher, _assert_no_strays, _pids, _run  # noqa: E402  (the launcher helpers)
+from knode_swarm_ros.core import load_trajectories  # noqa: E402
+from test_ros_swarm import Launcher, _assert_no_strays, _parity, _pids, _run  # noqa: E402  (the launcher helpers)
 
 pytestmark = pytest.mark.ros
 
@@ -31,12 +29,8 @@ def test_lockstep_over_three_hosting_processes_equals_the_offline_rollout(tmp_pa
                    '--record', record)
     assert rc == 0, out
     assert '3 agent processes for 11 robots' in out
-    data = load_trajectories(record)
-    states = data.states[0]
-    assert states.shape == (steps + 1, 11, 4) and data.meta['incomplete_frames'] == 0
-    policy = load_policy(untrained_policies['flock2d'])
-    ref = rollout(policy, states[0], steps, 'flock2d', policy.d_cr, policy.k, policy.tau, policy.dt)
-    assert np.array_equal(ref, states), f'max state difference {np.abs(ref - states).max()}'
+    assert load_trajectories(record).states[0].shape == (steps + 1, 11, 4)
+    assert _parity(record, untrained_policies['flock2d'], steps) == 0   # bit for bit
     for name, hosted in (('agents_0_3', 4), ('agents_4_7', 4), ('agents_8_10', 3)):
         report = json.loads((tmp_path / 'logs' / f'{name}.json').read_text())
         assert len(report['robots']) == hosted
