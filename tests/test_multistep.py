@@ -13,7 +13,7 @@ from knode_swarm_ros.core.network import neighbour_matrix_torch
 from knode_swarm_ros.core.rollout import rollout_torch
 from training.config import ConfigError, normalise_config
 from training.objectives import loss_scales
-from training.multistep import (Windows, augment_windows, horizon_at, rollout_windows, window_loss,
+from training.multistep import (Windows, augment_windows, consensus_loss, horizon_at, rollout_windows, window_loss,
                                 window_scales)
 from training.trainer import Trainer
 from test_training import _swarm  # noqa: E402  (the same random swarm states as the one-step tests)
@@ -311,3 +311,86 @@ def test_torch_neighbour_matrix_equals_the_numpy_builder_for_any_leading_shape(l
     assert Yt.shape == lead + (6, 4, 4)
     np.testing.assert_array_equal(Yt.numpy(), Y)
     np.testing.assert_array_equal(mt.numpy().astype(bool), mask)
+
+
+# ----------------------------------------------------------------------------- consensus_weight
+
+def test_consensus_loss_ignores_a_common_drift_and_weighs_relative_velocities():
+    """Hand-computed on 2 robots: a drift common to the swarm costs nothing; a disagreement costs its
+    relative-velocity error (each robot's velocity minus the swarm mean)."""
+    obs = torch.zeros(1, 3, 2, 4)
+    scales = window_scales(FLOCK, 0.01, 2, "state")
+    drift = obs.clone()
+    drift[:, 1:, :, 2] += 0.7                                              # every robot's vx + 0.7
+    drift[:, 1:, :, :2] += 0.3                                             # and a common position error
+    assert consensus_loss(drift, obs, scales, FLOCK.velocity).item() == 0.0
+    assert window_loss(drift, obs, scales).item() > 0                      # the plain loss does see it
+    split = obs.clone()
+    split[:, 1:, 0, 3] = 0.2                                               # robot 0 vy + 0.2: relative +0.1, -0.1
+    # squared errors 0.01 at 2 robots x 1 entry of 2 velocity entries x 2 robots, every frame: mean 0.005
+    assert abs(consensus_loss(split, obs, scales, FLOCK.velocity).item() - 0.005) < 1e-9
+
+
+def test_consensus_weighted_multi_step_loss_still_recovers_the_known_gains():
+    """The linear alignment + cohesion teacher: the window loss plus 10 x the consensus term, minimised
+    from elsewhere, returns the teacher's gains (the added term vanishes at the truth too)."""
+    teacher = LinearFlocking(1.5, 0.5)
+    z0 = _swarm(np.random.default_rng(6), 4, 5, FLOCK)
+    states = rollout(_numpy_fn(teacher), z0, 120, "flock2d", 3.0, 4, 0, 0.01)
+    windows = Windows(states, tau=0)
+    student = LinearFlocking(0.2, 2.0)
+    opt = torch.optim.LBFGS(student.parameters(), lr=0.5, max_iter=40, line_search_fn="strong_wolfe")
+    obs, _ = windows.gather(windows.fixed_starts(16, 20), 20)
+    obs = obs.double()
+    scales = window_scales(FLOCK, 0.01, 20, "state").double()
+
+    def closure():
+        opt.zero_grad()
+        pred = rollout_windows(student, FLOCK, {"d_cr": 3.0, "k": 4, "tau": 0}, 0.01, obs, None)
+        loss = window_loss(pred, obs, scales) + 10.0 * consensus_loss(pred, obs, scales, FLOCK.velocity)
+        loss.backward()
+        return loss
+    for _ in range(8):
+        opt.step(closure)
+    assert abs(student.a.item() - 1.5) < 1e-3 and abs(student.b.item() - 0.5) < 1e-3, (student.a, student.b)
+
+
+@pytest.mark.parametrize("scenario,value,ok", [("flock2d", 0.0, True), ("flock2d", 5, True), ("flock2d", -1.0, False),
+                                               ("flock2d", True, False), ("boids3d", 1.0, False), ("boids3d", 0.0, True)])
+def test_consensus_weight_config_check_names_the_field(scenario, value, ok):
+    raw = _raw()
+    raw["scenario"] = scenario
+    if scenario == "boids3d":
+        raw["augment"] = {"rotate": False, "velocity_boost": 0.0}
+    raw["multistep"]["consensus_weight"] = value
+    if ok:
+        assert normalise_config(raw)["multistep"]["consensus_weight"] == value
+    else:
+        with pytest.raises(ConfigError, match=r"multistep\.consensus_weight"):
+            normalise_config(raw)
+
+
+def test_multi_step_objective_adds_the_weighted_consensus_term():
+    """MultiStepObjective.loss = window loss + consensus_weight x consensus loss, on the same windows."""
+    from training.multistep import MultiStepObjective
+    states = rollout(lambda Y, m: np.zeros((Y.shape[0], 2)), _swarm(np.random.default_rng(8), 3, 5, FLOCK), 30,
+                     "flock2d", 3.0, 4, 0, 0.01).astype(np.float32)
+    torch.manual_seed(1)
+    policy = KNODEPolicy(PolicyConfig("flock2d", k=4, d_cr=3.0, hidden=8, collision_phi=1.0))
+    losses = {}
+    for w in (0.0, 3.0):
+        raw = _raw()
+        raw["policy"].update({"k": 4, "d_cr": 3.0, "tau": 0})
+        raw["augment"] = {"rotate": False, "velocity_boost": 0.0}
+        raw["multistep"].update({"consensus_weight": w, "units": "state"})
+        cfg = normalise_config(raw)
+        obj = MultiStepObjective(cfg, FLOCK, 0.01, states)
+        obj.H = 5
+        starts = obj.windows.fixed_starts(4, 5)
+        with torch.no_grad():
+            losses[w] = obj.loss(policy, starts, None).item()
+            obs, _ = obj.windows.gather(starts, 5)
+            pred = rollout_windows(policy, FLOCK, cfg["policy"], 0.01, obs, None)
+            extra = consensus_loss(pred, obs, window_scales(FLOCK, 0.01, 5, "state"), FLOCK.velocity).item()
+    assert extra > 0
+    assert abs(losses[3.0] - (losses[0.0] + 3.0 * extra)) < 1e-6 * max(1.0, losses[3.0])

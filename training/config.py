@@ -31,7 +31,8 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
                  "max_minutes": None, "objective": "one_step"},
     # the multi_step objective (training/multistep.py): curriculum of horizons, from a one-step model
     "multistep": {"init": None, "horizons": [10, 50, 200], "epochs": [2, 2, 2], "windows_per_epoch": 256,
-                  "batch_windows": 16, "units": "command", "checkpoint": 0, "velocity_weight": 1.0},
+                  "batch_windows": 16, "units": "command", "checkpoint": 0, "velocity_weight": 1.0,
+                  "consensus_weight": 0.0},
     "selection": {"every": 5, "trajectories": 4, "steps": None},
     "augment": {"rotate": False, "velocity_boost": 0.0},
 }
@@ -163,6 +164,11 @@ def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
     vw = m["velocity_weight"]
     _check(isinstance(vw, (int, float)) and not isinstance(vw, bool) and math.isfinite(vw) and vw > 0,
            "multistep.velocity_weight", vw, "must be a number > 0 (1: position and velocity weigh alike)")
+    cw = m["consensus_weight"]
+    _check(isinstance(cw, (int, float)) and not isinstance(cw, bool) and math.isfinite(cw) and cw >= 0,
+           "multistep.consensus_weight", cw, "must be a number >= 0 (0: off)")
+    _check(cw == 0 or get_scenario(cfg["scenario"]).command == "acceleration", "multistep.consensus_weight", cw,
+           "weighs velocities relative to the swarm's mean: acceleration scenarios (flock2d) only")
     _check(isinstance(m["checkpoint"], int) and m["checkpoint"] >= 0, "multistep.checkpoint", m["checkpoint"],
            "must be an integer >= 0 (0: no activation checkpointing)")
     if t["objective"] == "multi_step":

@@ -8,8 +8,9 @@ the model out over H steps from an observed swarm state with the deployment sema
 (:func:`knode_swarm_ros.core.rollout_torch`: zero-order hold, neighbour matrices rebuilt from
 the model's own predicted states, delayed by tau) and penalises the whole predicted window,
 with gradients through the rollout (direct backprop; ``multistep.checkpoint`` recomputes
-segments in the backward pass to save memory on long horizons). A curriculum raises H stage by
-stage (``multistep.horizons`` with ``multistep.epochs`` epochs each), starting from a one-step
+segments in the backward pass to save memory on long horizons). ``multistep.consensus_weight``
+adds the error of the velocities relative to the swarm's mean, what avd measures. A curriculum
+raises H stage by stage (``multistep.horizons`` with ``multistep.epochs`` epochs each), starting from a one-step
 model (``multistep.init``).
 
 Shapes: N trajectories, T frames, n robots, d state entries, W windows of H + 1 frames.
@@ -26,7 +27,8 @@ from torch import Tensor
 from knode_swarm_ros.core.rollout import rollout_torch
 from knode_swarm_ros.core.scenarios import Scenario
 
-__all__ = ["Windows", "horizon_at", "window_scales", "window_loss", "augment_windows", "rollout_windows"]
+__all__ = ["Windows", "horizon_at", "window_scales", "window_loss", "consensus_loss", "augment_windows",
+           "rollout_windows"]
 
 
 class Windows:
@@ -130,6 +132,20 @@ def window_scales(spec: Scenario, dt: float, H: int, units: str, heading_weight:
 def window_loss(pred: Tensor, obs: Tensor, scales: Tensor) -> Tensor:
     """Mean of ((pred - obs) / scales)^2 over windows, frames 1..H, robots and entries."""
     return (((pred[:, 1:] - obs[:, 1:]) / scales[None, :, None, :]) ** 2).mean()
+
+
+def consensus_loss(pred: Tensor, obs: Tensor, scales: Tensor, velocity: slice) -> Tensor:
+    """Mean squared error of every robot's velocity relative to its swarm's mean velocity.
+
+    ``pred``, ``obs`` ``[W, H + 1, n, d]``, ``scales [H, d]`` (the window's units), frames 1..H.
+    avd, the flocking measure, is the spread of exactly these relative velocities; a common drift
+    of the whole swarm (equal for every robot) costs nothing here, while in the plain window loss
+    it can outweigh the small disagreements that keep a swarm from flocking.
+    """
+    def rel(z):
+        v = z[:, 1:, :, velocity]                                               # [W, H, n, m]
+        return v - v.mean(dim=2, keepdim=True)
+    return (((rel(pred) - rel(obs)) / scales[None, :, None, velocity]) ** 2).mean()
 
 
 def augment_windows(obs: Tensor, history: Optional[Tensor], dt: float, rotate: bool, boost_std: float,
@@ -243,4 +259,8 @@ class MultiStepObjective:
         tc = self.cfg["training"]
         scales = window_scales(self.spec, self.dt, obs.shape[1] - 1, self.mc["units"], tc["heading_weight"],
                                self.mc["velocity_weight"])
-        return window_loss(pred, obs, scales)
+        loss = window_loss(pred, obs, scales)
+        cw = self.mc["consensus_weight"]
+        if cw > 0:  # config: acceleration scenarios only
+            loss = loss + cw * consensus_loss(pred, obs, scales, self.spec.velocity)
+        return loss
