@@ -82,3 +82,47 @@ def test_compare_command_writes_the_table_for_every_controller(tmp_path, untrain
     table = (out / "table.md").read_text()
     assert table.count("| 6 |") == 4
     assert main(["--data", str(data), "--out", str(out), "--policy", "nonsense"]) == 2
+
+
+# ----------------------------------------------------------------------------- training.gains (why scaling fails)
+
+def test_row_gains_of_the_local_tanner_law_are_its_known_gains():
+    """Velocity gains -(k - 1), 1, ..., 1; position gains d/dr of the pair force at each row (one
+    neighbour at distance 2 on the x axis: the x row derivative of -2 (1/r^2 - 1/r^4) r_ij)."""
+    from training.gains import row_gains
+    rng = np.random.default_rng(0)
+    Y = np.concatenate([rng.uniform(-2, 2, (7, 5, 2)), rng.normal(size=(7, 5, 2)) * 0.1], -1)
+    mask = np.ones((7, 5), bool)
+    g = row_gains(lambda Y, m: local_tanner_acceleration(Y, m), Y, mask)
+    np.testing.assert_allclose(g["velocity"], [-4.0, 1, 1, 1, 1], atol=1e-6)
+    np.testing.assert_allclose(g["position"].sum(), 0.0, atol=1e-5)           # translation invariance
+    one = np.array([[[0.0, 0, 0, 0], [2.0, 0, 0, 0]]])
+    g1 = row_gains(lambda Y, m: local_tanner_acceleration(Y, m), one, np.ones((1, 2), bool), eps=1e-5)
+    # with (x, y) = p_0 - p_1 = (-2, 0): u_x = -2 (1/r^2 - 1/r^4) x and d u_y / d y = -2 (1/r^2 - 1/r^4);
+    # moving p_1 moves (x, y) the other way, so the gain is -(d u_x / d x + d u_y / d y) / 2
+    ux = lambda x: -2 * (1 / x ** 2 - 1 / x ** 4) * x                            # noqa: E731
+    uy_dy = -2 * (1 / 4 - 1 / 16)                                                 # d u_y / d(y_0 - y_1) at y = 0
+    want = (-(ux(-2 + 1e-6) - ux(-2 - 1e-6)) / 2e-6 - uy_dy) / 2
+    np.testing.assert_allclose(g1["position"][1], want, rtol=1e-6)
+
+
+def test_velocity_field_recovers_a_known_rotation_and_expansion():
+    from training.gains import velocity_field
+    rng = np.random.default_rng(1)
+    r = rng.normal(size=(40, 2)) * 3
+    A = np.array([[0.05, -0.2], [0.2, 0.05]])                                  # div 0.05, omega 0.2
+    z = np.concatenate([r + 7.0, r @ A.T + np.array([1.0, -2.0])], 1)           # any offset, any common velocity
+    f = velocity_field(z)
+    assert abs(f["div"] - 0.05) < 1e-9 and abs(f["omega"] - 0.2) < 1e-9 and abs(f["r2"] - 1) < 1e-9
+    np.testing.assert_allclose(f["avd"], np.linalg.norm((r - r.mean(0)) @ A.T, axis=1).mean())
+
+
+def test_gains_command_reports_every_controller_and_refuses_bad_frames(untrained_policies, capsys):
+    from training.gains import main
+    path = str(untrained_policies["flock2d"])
+    assert main(["--policy", path, "--sizes", "7", "--starts", "2", "--steps", "20", "--frames", "5", "10", "20"]) == 0
+    out = capsys.readouterr().out
+    for name in ("local_tanner", path):
+        assert out.count(f"n=7 {name}: truth frame") == 2 and out.count(f"n=7 {name}: rollout") == 3
+    assert main(["--policy", path, "--steps", "20", "--frames", "30"]) == 2
+    assert main(["--policy", str(untrained_policies["boids3d"]), "--steps", "20", "--frames", "5", "10"]) == 2
