@@ -47,6 +47,7 @@ CASES = [
     ("unicycle_study", "--policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
     ("provenance", "{tmp}/missing.pt --data data/flock2d.npz", "missing.pt"),
     ("demo", "--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
+    ("gains", "--policy {tmp}/missing.pt --steps 3 --frames 1 2", "missing.pt"),
 ]
 
 
