@@ -124,5 +124,32 @@ def test_gains_command_reports_every_controller_and_refuses_bad_frames(untrained
     out = capsys.readouterr().out
     for name in ("local_tanner", path):
         assert out.count(f"n=7 {name}: truth frame") == 2 and out.count(f"n=7 {name}: rollout") == 3
+        assert out.count(f"n=7 {name}: final avd") == 1
+    # an added term changes the policy's rollout, never the local Tanner baseline's
+    assert main(["--policy", path, "--sizes", "7", "--starts", "2", "--steps", "20", "--frames", "5", "10", "20",
+                 "--add-alignment", "1"]) == 0
+    added = capsys.readouterr().out
+    line = lambda text, name: next(x for x in text.splitlines() if x.startswith(f"n=7 {name}: final avd"))  # noqa: E731
+    assert line(added, "local_tanner") == line(out, "local_tanner") and line(added, path) != line(out, path)
     assert main(["--policy", path, "--steps", "20", "--frames", "30"]) == 2
     assert main(["--policy", str(untrained_policies["boids3d"]), "--steps", "20", "--frames", "5", "10"]) == 2
+
+
+def test_added_tanner_terms_make_a_zero_controller_the_local_tanner_law_where_pairs_attract():
+    """zero + attraction + alignment (gain 1) equals local Tanner on rows that are all farther than 1
+    (where the pair term attracts), and the attraction term is 0 for rows closer than 1."""
+    from training.gains import tanner_attraction, with_terms
+    rng = np.random.default_rng(2)
+    ang = rng.uniform(0, 2 * np.pi, (6, 4))
+    dist = rng.uniform(1.2, 3.0, (6, 4))
+    Y = np.zeros((6, 5, 4))
+    Y[:, 1:, 0], Y[:, 1:, 1] = dist * np.cos(ang), dist * np.sin(ang)
+    Y[..., 2:] = rng.normal(size=(6, 5, 2))
+    mask = np.ones((6, 5), bool)
+    zero = lambda Y, m: np.zeros((len(Y), 2))                                   # noqa: E731
+    np.testing.assert_allclose(with_terms(zero, 1.0, 1.0, None)(Y, mask), local_tanner_acceleration(Y, mask), atol=1e-12)
+    np.testing.assert_allclose(with_terms(zero, 1.0, 1.0, 0.5)(Y, mask), local_tanner_acceleration(Y, mask, 0.5),
+                               atol=1e-12)
+    Y[:, 1:, :2] *= 0.5 / dist[..., None]                                      # every neighbour 0.5 away
+    np.testing.assert_array_equal(tanner_attraction(Y, mask), np.zeros((6, 2)))
+    assert with_terms(zero, 0.0, 0.0, None) is zero

@@ -13,6 +13,10 @@ Two measurements on held-out ground-truth starts (:func:`core.groundtruth.simula
   v_i - vbar = A (r_i - rbar): R^2 of the fit, rotation omega = (A_21 - A_12) / 2 and expansion
   rate div = (A_11 + A_22) / 2 (1/s). A swarm that expands at div has avd ~ div x its radius.
 
+``--add-attraction G`` / ``--add-alignment G`` roll each policy out with G times the local Tanner
+law's attraction (its pair term where r > 1) or alignment term added to its command (then
+clipped): an intervention that tests whether a missing piece explains a failure.
+
 Shapes: S starts, T frames, n robots, k rows, B = S n matrices.
 """
 from __future__ import annotations
@@ -23,12 +27,14 @@ from typing import Callable, Dict, List, Optional
 
 import numpy as np
 
-from knode_swarm_ros.core import load_policy, rollout
+from knode_swarm_ros.core import get_scenario, load_policy, rollout
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.groundtruth.tanner import local_tanner_acceleration
 from knode_swarm_ros.core.network import neighbour_matrices
+
+from .scores import final_metrics
 
 Controller = Callable[[np.ndarray, np.ndarray], np.ndarray]   # (Y [B, k, 4], mask [B, k]) -> u [B, 2]
 
@@ -73,6 +79,30 @@ def velocity_field(states: np.ndarray) -> Dict[str, float]:
             "radius": float(np.linalg.norm(r, axis=1).mean())}
 
 
+def tanner_attraction(Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``[B, 2]`` the local Tanner pair term -2 (1/r^2 - 1/r^4) r_ij summed over masked rows with r > 1."""
+    dp = Y[:, :1, :2] - Y[:, 1:, :2]
+    r2 = np.sum(dp * dp, axis=-1, keepdims=True)
+    c = np.where(r2 > 1.0, 1.0 / np.maximum(r2, 1.0) - 1.0 / np.maximum(r2, 1.0) ** 2, 0.0)
+    return -2.0 * np.sum(np.where(np.asarray(mask, bool)[:, 1:, None], c * dp, 0.0), axis=1)
+
+
+def tanner_alignment(Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``[B, 2]`` the local Tanner alignment term -sum_j (v_i - v_j) over masked rows."""
+    return -np.sum(np.where(np.asarray(mask, bool)[:, 1:, None], Y[:, :1, 2:] - Y[:, 1:, 2:], 0.0), axis=1)
+
+
+def with_terms(fn: Controller, attraction: float, alignment: float, limit: Optional[float]) -> Controller:
+    """``fn`` plus ``attraction`` x :func:`tanner_attraction` + ``alignment`` x :func:`tanner_alignment`, clipped."""
+    if attraction == 0 and alignment == 0:
+        return fn
+
+    def wrapped(Y, m):
+        u = np.asarray(fn(Y, m)) + attraction * tanner_attraction(Y, m) + alignment * tanner_alignment(Y, m)
+        return u if limit is None else np.clip(u, -limit, limit)
+    return wrapped
+
+
 def _controllers(policies: List[str], limit: float) -> Dict[str, Controller]:
     import torch
     out: Dict[str, Controller] = {"local_tanner": lambda Y, m: local_tanner_acceleration(Y, m, limit)}
@@ -96,6 +126,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--frames", type=int, nargs="+", default=[500, 1000, 2000],
                         help="frames where gains (first two) and the rollout's field are measured")
     parser.add_argument("--seed", type=int, default=50000, help="start seeds are SEED + n")
+    parser.add_argument("--add-attraction", type=float, default=0.0, metavar="G",
+                        help="add G x the local Tanner attraction to every policy's command")
+    parser.add_argument("--add-alignment", type=float, default=0.0, metavar="G",
+                        help="add G x the local Tanner alignment to every policy's command")
     args = parser.parse_args(argv)
     import torch
     torch.set_num_threads(1)
@@ -109,7 +143,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         raise KnodeError(f"--policy {args.policy[0]}: gains are defined for flock2d policies only")
     limit = first.meta.get("command_limit")
     k, d_cr, tau, dt = first.k, first.d_cr, first.tau, first.dt
-    fns = _controllers(args.policy, limit)
+    fns = {name: fn if name == "local_tanner" else with_terms(fn, args.add_attraction, args.add_alignment, limit)
+           for name, fn in _controllers(args.policy, limit).items()}
     for n, count in zip(args.sizes, args.starts):
         truth = simulate("flock2d", count, n, args.steps + 1, args.seed + n, progress=False)
         for name, fn in fns.items():
@@ -120,6 +155,10 @@ def main(argv: Optional[List[str]] = None) -> int:
                       f"position {np.round(g['position'], 2).tolist()}", flush=True)
             with np.errstate(all="ignore"):
                 pred = rollout(fn, truth[:, 0], args.steps, "flock2d", d_cr, k, tau, dt)
+            final = final_metrics(get_scenario("flock2d"), pred, dt=dt)
+            a = np.array(final["avd_final"])
+            print(f"n={n} {name}: final avd {a.mean():.3f} ± {a.std(ddof=1) if count > 1 else 0.0:.3f} sd "
+                  f"[{a.min():.3f}, {a.max():.3f}] amd {np.mean(final['amd_final']):.3f}", flush=True)
             for f in args.frames:
                 fits = [velocity_field(pred[s, f]) for s in range(count)]
                 col = {key: np.array([x[key] for x in fits]) for key in fits[0]}
