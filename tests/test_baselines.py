@@ -153,3 +153,19 @@ def test_added_tanner_terms_make_a_zero_controller_the_local_tanner_law_where_pa
     Y[:, 1:, :2] *= 0.5 / dist[..., None]                                      # every neighbour 0.5 away
     np.testing.assert_array_equal(tanner_attraction(Y, mask), np.zeros((6, 2)))
     assert with_terms(zero, 0.0, 0.0, None) is zero
+
+
+def test_closed_groups_counts_groups_that_hear_no_one_else():
+    """Two far clusters of 3 (k = 3: two nearest each) are two closed groups; a chain that listens
+    towards one end is one; a robot out of every radius is a group of its own."""
+    from training.gains import closed_groups
+    z = np.zeros((6, 4))
+    z[:3, 0] = [0.0, 1.0, 2.0]
+    z[3:, 0] = [50.0, 51.0, 52.0]
+    assert closed_groups(z, 5.0, 3) == 2
+    assert closed_groups(z, 100.0, 6) == 1                     # everyone hears everyone
+    chain = np.zeros((5, 4))
+    chain[:, 0] = [0.0, 1.0, 3.0, 6.0, 10.0]                   # each hears its single nearest (k = 2)
+    assert closed_groups(chain, 5.0, 2) == 1                   # 0 <-> 1 is the one closed pair; 2 -> 1, 3 -> 2, 4 -> 3
+    z[5, 0] = 200.0
+    assert closed_groups(z, 5.0, 3) == 3                       # robot 5 hears no one; 3 and 4 hear only each other

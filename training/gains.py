@@ -11,7 +11,8 @@ Two measurements on held-out ground-truth starts (:func:`core.groundtruth.simula
   the neighbour's distance; a row with gain 0 is a neighbour the controller ignores.
 - the disagreement of a rollout from the same starts, fitted by a linear velocity field
   v_i - vbar = A (r_i - rbar): R^2 of the fit, rotation omega = (A_21 - A_12) / 2 and expansion
-  rate div = (A_11 + A_22) / 2 (1/s). A swarm that expands at div has avd ~ div x its radius.
+  rate div = (A_11 + A_22) / 2 (1/s). A swarm that expands at div has avd ~ div x its radius;
+  and the number of closed groups of its listening graph (:func:`closed_groups`).
 
 ``--add-attraction G`` / ``--add-alignment G`` roll each policy out with G times the local Tanner
 law's attraction (its pair term where r > 1) or alignment term added to its command (then
@@ -77,6 +78,31 @@ def velocity_field(states: np.ndarray) -> Dict[str, float]:
             "r2": 1.0 - float((res * res).sum()) / total if total > 0 else 1.0,
             "omega": float(A[1, 0] - A[0, 1]) / 2, "div": float(A[0, 0] + A[1, 1]) / 2,
             "radius": float(np.linalg.norm(r, axis=1).mean())}
+
+
+def closed_groups(states: np.ndarray, d_cr: float, k: int) -> int:
+    """Groups of robots that listen only to each other in one snapshot ``[n, 4]``.
+
+    The listening graph has an edge i -> j when j is one of i's k - 1 nearest robots within d_cr
+    (the rows of i's neighbour matrix). A closed group is a strongly connected component with no
+    edge leaving it: its robots never hear anyone outside it, so a swarm with more than one such
+    group cannot reach one velocity under any controller of this information network.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(states)
+    d = np.linalg.norm(states[:, None, :2] - states[None, :, :2], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    order = np.argsort(d, axis=1, kind="stable")[:, : k - 1]
+    rows = np.repeat(np.arange(n), order.shape[1])
+    keep = d[rows, order.ravel()] <= d_cr
+    graph = csr_matrix((np.ones(keep.sum()), (rows[keep], order.ravel()[keep])), shape=(n, n))
+    count, label = connected_components(graph, directed=True, connection="strong")
+    leaves = np.ones(count, bool)
+    src, dst = graph.nonzero()
+    leaves[label[src][label[src] != label[dst]]] = False
+    return int(leaves.sum())
 
 
 def tanner_attraction(Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -160,11 +186,13 @@ def main(argv: Optional[List[str]] = None) -> int:
             print(f"n={n} {name}: final avd {a.mean():.3f} ± {a.std(ddof=1) if count > 1 else 0.0:.3f} sd "
                   f"[{a.min():.3f}, {a.max():.3f}] amd {np.mean(final['amd_final']):.3f}", flush=True)
             for f in args.frames:
-                fits = [velocity_field(pred[s, f]) for s in range(count)]
+                fits = [dict(velocity_field(pred[s, f]), groups=closed_groups(pred[s, f], d_cr, k))
+                        for s in range(count)]
                 col = {key: np.array([x[key] for x in fits]) for key in fits[0]}
                 print(f"n={n} {name}: rollout t={f * dt:g}s avd {col['avd'].mean():.3f} field R2 "
                       f"{col['r2'].mean():.2f} omega {col['omega'].mean():+.3f} div {col['div'].mean():+.3f} "
-                      f"(per start {np.round(col['div'], 3).tolist()}) radius {col['radius'].mean():.2f}", flush=True)
+                      f"(per start {np.round(col['div'], 3).tolist()}) radius {col['radius'].mean():.2f} "
+                      f"closed groups {col['groups'].astype(int).tolist()}", flush=True)
     return 0
 
 
