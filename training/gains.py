@@ -105,17 +105,24 @@ def closed_groups(states: np.ndarray, d_cr: float, k: int) -> int:
     return int(leaves.sum())
 
 
+def _still(Y: np.ndarray) -> np.ndarray:
+    """``Y`` with every velocity 0: what is left of the local Tanner law is its pair (position) term."""
+    out = np.array(Y, dtype=np.float64)
+    out[..., 2:] = 0.0
+    return out
+
+
 def tanner_attraction(Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """``[B, 2]`` the local Tanner pair term -2 (1/r^2 - 1/r^4) r_ij summed over masked rows with r > 1."""
-    dp = Y[:, :1, :2] - Y[:, 1:, :2]
-    r2 = np.sum(dp * dp, axis=-1, keepdims=True)
-    c = np.where(r2 > 1.0, 1.0 / np.maximum(r2, 1.0) - 1.0 / np.maximum(r2, 1.0) ** 2, 0.0)
-    return -2.0 * np.sum(np.where(np.asarray(mask, bool)[:, 1:, None], c * dp, 0.0), axis=1)
+    """``[B, 2]`` the local Tanner pair term -2 (1/r^2 - 1/r^4) r_ij over the masked rows with r > 1
+    (where it attracts), from the core's :func:`local_tanner_acceleration`."""
+    far = np.asarray(mask, bool) & (np.sum((Y[:, :, :2] - Y[:, :1, :2]) ** 2, axis=-1) > 1.0)
+    far[:, 0] = np.asarray(mask, bool)[:, 0]
+    return local_tanner_acceleration(_still(Y), far)
 
 
 def tanner_alignment(Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """``[B, 2]`` the local Tanner alignment term -sum_j (v_i - v_j) over masked rows."""
-    return -np.sum(np.where(np.asarray(mask, bool)[:, 1:, None], Y[:, :1, 2:] - Y[:, 1:, 2:], 0.0), axis=1)
+    """``[B, 2]`` the local Tanner alignment term -sum_j (v_i - v_j) over the masked rows."""
+    return local_tanner_acceleration(Y, mask) - local_tanner_acceleration(_still(Y), mask)
 
 
 def with_terms(fn: Controller, attraction: float, alignment: float, limit: Optional[float]) -> Controller:
