@@ -122,6 +122,7 @@ def test_gains_command_reports_every_controller_and_refuses_bad_frames(untrained
     path = str(untrained_policies["flock2d"])
     assert main(["--policy", path, "--sizes", "7", "--starts", "2", "--steps", "20", "--frames", "5", "10", "20"]) == 0
     out = capsys.readouterr().out
+    assert out.count("n=7 ground_truth: rollout") == 3 and out.count("n=7 ground_truth: final avd") == 1
     for name in ("local_tanner", path):
         assert out.count(f"n=7 {name}: truth frame") == 2 and out.count(f"n=7 {name}: rollout") == 3
         assert out.count(f"n=7 {name}: final avd") == 1

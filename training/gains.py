@@ -12,7 +12,8 @@ Two measurements on held-out ground-truth starts (:func:`core.groundtruth.simula
 - the disagreement of a rollout from the same starts, fitted by a linear velocity field
   v_i - vbar = A (r_i - rbar): R^2 of the fit, rotation omega = (A_21 - A_12) / 2 and expansion
   rate div = (A_11 + A_22) / 2 (1/s). A swarm that expands at div has avd ~ div x its radius;
-  and the number of closed groups of its listening graph (:func:`closed_groups`).
+  and the number of closed groups of its listening graph (:func:`closed_groups`). The same for
+  the observed (ground-truth) swarm, whose global law does not use that graph.
 
 ``--add-attraction G`` / ``--add-alignment G`` roll each policy out with G times the local Tanner
 law's attraction (its pair term where r > 1) or alignment term added to its command (then
@@ -149,6 +150,22 @@ def _controllers(policies: List[str], limit: float) -> Dict[str, Controller]:
     return out
 
 
+def _report(n: int, name: str, pred: np.ndarray, frames: List[int], count: int, d_cr: float, k: int,
+            dt: float) -> None:
+    """Print the final avd / amd of runs ``[S, T, n, 4]`` and their velocity field at ``frames``."""
+    final = final_metrics(get_scenario("flock2d"), pred, dt=dt)
+    a = np.array(final["avd_final"])
+    print(f"n={n} {name}: final avd {a.mean():.3f} ± {a.std(ddof=1) if count > 1 else 0.0:.3f} sd "
+          f"[{a.min():.3f}, {a.max():.3f}] amd {np.mean(final['amd_final']):.3f}", flush=True)
+    for f in frames:
+        fits = [dict(velocity_field(pred[s, f]), groups=closed_groups(pred[s, f], d_cr, k)) for s in range(count)]
+        col = {key: np.array([x[key] for x in fits]) for key in fits[0]}
+        print(f"n={n} {name}: rollout t={f * dt:g}s avd {col['avd'].mean():.3f} field R2 "
+              f"{col['r2'].mean():.2f} omega {col['omega'].mean():+.3f} div {col['div'].mean():+.3f} "
+              f"(per start {np.round(col['div'], 3).tolist()}) radius {col['radius'].mean():.2f} "
+              f"closed groups {col['groups'].astype(int).tolist()}", flush=True)
+
+
 @cli("python -m training.gains")
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m training.gains", description=__doc__.split("\n\n")[0])
@@ -180,6 +197,7 @@ def main(argv: Optional[List[str]] = None) -> int:
            for name, fn in _controllers(args.policy, limit).items()}
     for n, count in zip(args.sizes, args.starts):
         truth = simulate("flock2d", count, n, args.steps + 1, args.seed + n, progress=False)
+        _report(n, "ground_truth", truth, args.frames, count, d_cr, k, dt)
         for name, fn in fns.items():
             for f in args.frames[:2]:
                 Y, m = neighbour_matrices(truth[:, [f]], 2, d_cr, k, tau)
@@ -188,18 +206,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                       f"position {np.round(g['position'], 2).tolist()}", flush=True)
             with np.errstate(all="ignore"):
                 pred = rollout(fn, truth[:, 0], args.steps, "flock2d", d_cr, k, tau, dt)
-            final = final_metrics(get_scenario("flock2d"), pred, dt=dt)
-            a = np.array(final["avd_final"])
-            print(f"n={n} {name}: final avd {a.mean():.3f} ± {a.std(ddof=1) if count > 1 else 0.0:.3f} sd "
-                  f"[{a.min():.3f}, {a.max():.3f}] amd {np.mean(final['amd_final']):.3f}", flush=True)
-            for f in args.frames:
-                fits = [dict(velocity_field(pred[s, f]), groups=closed_groups(pred[s, f], d_cr, k))
-                        for s in range(count)]
-                col = {key: np.array([x[key] for x in fits]) for key in fits[0]}
-                print(f"n={n} {name}: rollout t={f * dt:g}s avd {col['avd'].mean():.3f} field R2 "
-                      f"{col['r2'].mean():.2f} omega {col['omega'].mean():+.3f} div {col['div'].mean():+.3f} "
-                      f"(per start {np.round(col['div'], 3).tolist()}) radius {col['radius'].mean():.2f} "
-                      f"closed groups {col['groups'].astype(int).tolist()}", flush=True)
+            _report(n, name, pred, args.frames, count, d_cr, k, dt)
     return 0
 
 
