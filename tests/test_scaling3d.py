@@ -294,3 +294,29 @@ def test_crowding_on_a_hand_built_frame(tmp_path, capsys):
     assert crowding_main([str(tmp_path / "r.json")]) == 0
     assert capsys.readouterr().out.count("7 boids, start 0") == 2
     assert crowding_main([str(tmp_path / "missing.json")]) == 2
+
+
+def test_knowledge_variant_changes_only_the_knowledge_settings(tmp_path, capsys):
+    from knode_swarm_ros.core import load_policy
+    from training.knowledge_variant import main as variant_main
+    pol = _tiny_policy(tmp_path)
+    original = load_policy(pol)
+    out = tmp_path / "v.pt"
+    assert variant_main([pol, "--set", "collision_d0=0.5", "--set", "wall=false", "--out", str(out)]) == 0
+    v = load_policy(str(out))
+    assert v.meta["config"]["collision_d0"] == 0.5 and v.meta["config"]["wall"] is False
+    assert v.meta["provenance"]["knowledge_variant"]["changes"] == {"collision_d0": 0.5, "wall": False}
+    # Known answer: the same parameters in a policy built with those settings.
+    torch.manual_seed(0)
+    ref = KNODEPolicy(PolicyConfig("boids3d", **{**DEFAULTS["boids3d"], "hidden": 8, "collision_d0": 0.5, "wall": False}))
+    ref.load_state_dict(original.module.state_dict())
+    Y = torch.randn(64, 6, 6) * 1.2
+    Y[:, 0, :3] = 4.7                                        # near three walls: the wall term would act
+    mask = torch.ones(64, 6)
+    with torch.no_grad():
+        np.testing.assert_allclose(v(Y, mask), ref(Y, mask).numpy(), atol=1e-6)
+    assert np.abs(v(Y, mask) - original(Y, mask)).max() > 1e-3
+    for bad in (["--set", "collision_d0=0"], ["--set", "hidden=4"], ["--set", "wall=maybe"], []):
+        assert variant_main([pol, *bad, "--out", str(tmp_path / "bad.pt")]) == 2, bad
+    assert not (tmp_path / "bad.pt").exists()
+    assert "collision_d0" in capsys.readouterr().err
