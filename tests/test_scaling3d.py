@@ -306,6 +306,7 @@ def test_knowledge_variant_changes_only_the_knowledge_settings(tmp_path, capsys)
     v = load_policy(str(out))
     assert v.meta["config"]["collision_d0"] == 0.5 and v.meta["config"]["wall"] is False
     assert v.meta["provenance"]["knowledge_variant"]["changes"] == {"collision_d0": 0.5, "wall": False}
+    assert set(v.meta["provenance"]["knowledge_variant"]) >= {"of", "git_commit", "git_tree_clean"}
     # Known answer: the same parameters in a policy built with those settings.
     torch.manual_seed(0)
     ref = KNODEPolicy(PolicyConfig("boids3d", **{**DEFAULTS["boids3d"], "hidden": 8, "collision_d0": 0.5, "wall": False}))

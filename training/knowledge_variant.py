@@ -19,6 +19,8 @@ from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, export_policy, load_
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 
+from .records import code_provenance
+
 #: The knowledge settings this tool may change (PolicyConfig fields that hold no parameters).
 CHANGEABLE = {"collision": bool, "collision_d0": float, "wall": bool, "wall_d0": float}
 
@@ -71,7 +73,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     out = policy.metadata(dt=meta["dt"])
     out["provenance"] = {**meta.get("provenance", {}),
                          "knowledge_variant": {"of": os.path.basename(args.policy), "changes": changes,
-                                               "note": "network and gains unchanged, not retrained"}}
+                                               "note": "network and gains unchanged, not retrained",
+                                               **code_provenance()}}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     export_policy(policy, args.out, out)
     print(f"wrote {args.out}: {os.path.basename(args.policy)} with {changes}")
