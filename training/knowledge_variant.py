@@ -44,11 +44,13 @@ def parse_changes(items: List[str]) -> Dict[str, Any]:
     return changes
 
 
-def knowledge_variant(path: str, changes: Dict[str, Any]) -> KNODEPolicy:
-    """The policy of ``path`` rebuilt with ``changes`` to its knowledge settings and its own
-    parameters (network and learnt gains)."""
-    loaded = load_policy(path)
-    config = PolicyConfig(**{**loaded.meta["config"], **changes})      # validates d0 > 0
+def knowledge_variant(loaded, changes: Dict[str, Any]) -> KNODEPolicy:
+    """The loaded policy (:func:`load_policy`) rebuilt with ``changes`` to its knowledge settings and
+    its own parameters (network and learnt gains)."""
+    try:
+        config = PolicyConfig(**{**loaded.meta["config"], **changes})  # validates d0 > 0
+    except ValueError as exc:
+        raise KnodeError(f"--set: {exc}") from None
     policy = KNODEPolicy(config)
     policy.load_state_dict(loaded.module.state_dict())
     return policy
@@ -65,11 +67,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     changes = parse_changes(args.set)
     if not changes:
         raise KnodeError("--set: give at least one change")
-    try:
-        policy = knowledge_variant(args.policy, changes)
-    except ValueError as exc:
-        raise KnodeError(f"--set: {exc}") from None
-    meta = load_policy(args.policy).meta
+    loaded = load_policy(args.policy)                                   # PolicyError names the file
+    policy = knowledge_variant(loaded, changes)
+    meta = loaded.meta
     out = policy.metadata(dt=meta["dt"])
     out["provenance"] = {**meta.get("provenance", {}),
                          "knowledge_variant": {"of": os.path.basename(args.policy), "changes": changes,
