@@ -44,6 +44,7 @@ CASES = [
     ("compare_controllers", "--data {tmp}/missing.npz --policy p={tmp}/missing.pt --out {tmp}/out", "missing"),
     ("scaling3d", "--merge {tmp}/missing.json --out {tmp}/out", "missing.json"),
     ("crowding", "{tmp}/missing.json", "missing.json"),
+    ("knowledge_variant", "{tmp}/missing.pt --set collision_d0=0.5 --out {tmp}/v.pt", "missing.pt"),
     ("unicycle_study", "--policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),
     ("provenance", "{tmp}/missing.pt --data data/flock2d.npz", "missing.pt"),
     ("demo", "--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out", "missing.pt"),

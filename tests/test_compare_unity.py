@@ -197,6 +197,20 @@ def test_unity_policies_cli(tmp_path):
     assert r["sets"]["t"]["oracle"]["pod_kld"]["max"] < 1e-3 < r["sets"]["t"]["a"]["pod_kld"]["mean"]
     assert (out / "unity_policies_amd.png").stat().st_size > 1000 and "| truth |" in (out / "summary.md").read_text()
     assert unity_policies.main(["--policy", "nonsense", "--data", f"t={data}", "--out", str(out)]) == 2
+    # --rollouts 3: 3 runs per test trajectory; copy 0 of each is the single-rollout run, the
+    # others start 1e-3 away (so they differ) and are compared with the same trajectory.
+    out3 = tmp_path / "pol3"
+    assert unity_policies.main(["--policy", f"a={pol}", "--data", f"t={data}", "--out", str(out3), "--steps", "15",
+                                "--figures", "", "--rollouts", "3"]) == 0
+    r3 = json.loads((out3 / "results.json").read_text())
+    kl3 = r3["sets"]["t"]["a"]["pod_kld_runs"]
+    assert r3["data"]["t"]["rollouts"] == 3 and len(kl3) == 6
+    np.testing.assert_allclose(kl3[0::3], r["sets"]["t"]["a"]["pod_kld_runs"], rtol=1e-5)  # float32 batches
+    assert kl3[1] != kl3[0] and kl3[4] != kl3[3]
+    assert "2 runs x 3 rollouts" in (out3 / "summary.md").read_text()
+    with pytest.raises(SystemExit) as exc:                    # argparse's usage error: status 2
+        unity_policies.main(["--policy", f"a={pol}", "--data", f"t={data}", "--out", str(out3), "--rollouts", "0"])
+    assert exc.value.code == 2
 
 
 def test_resample_uniform_known_answers():

@@ -128,8 +128,10 @@ GRID_METRICS = {"flock2d": {"avd_final": ("mean", "median"), "amd_final": ("mean
 
 
 def _cell_values(cell: Dict[str, Any], name: str) -> Optional[np.ndarray]:
-    if name == "left_cube" and "stays_inside" in cell:
-        return 1.0 - np.asarray(cell["stays_inside"], dtype=np.float64)
+    if name == "left_cube":              # boids3d cells: no_boid_leaves (training.scaling.leaving)
+        key = "no_boid_leaves" if "no_boid_leaves" in cell else "stays_inside"
+        if key in cell:
+            return 1.0 - np.asarray(cell[key], dtype=np.float64)
     return np.asarray(cell[name], dtype=np.float64) if name in cell else None
 
 

@@ -20,7 +20,7 @@ from .boids_stats import PERCEPTION_RADIUS, group_labels, subgroups
 from .scores import final_metrics
 from .stats import describe
 
-__all__ = ["outside", "escaped", "subswarm_count", "escape_events", "size_metrics", "scaling_study",
+__all__ = ["outside", "leaving", "escaped", "subswarm_count", "escape_events", "size_metrics", "scaling_study",
            "goal_check", "summary_lines", "GOALS"]
 
 #: Goals of issue 17 at these sizes: amd within 15 % of the ground truth, no boid leaving the cube
@@ -44,9 +44,24 @@ def outside(states: np.ndarray, box: float) -> np.ndarray:
     return np.any(np.abs(states[..., :3]) > box + BOX_TOL, axis=-1)
 
 
+def leaving(states: np.ndarray, box: float) -> np.ndarray:
+    """Where each boid leaves the cube: ``states [S, T, n, 6]`` -> ``[S, T, n]``, True at frame t when
+    the boid is outside at t and was inside at some frame before t.
+
+    The one definition of "a boid leaves the cube" (issue 17): a boid that starts outside (the
+    Unity spawn ball of radius 5 touches the walls) has not left; it leaves if it gets in and then
+    goes out again. Frame 0 is never a leaving frame.
+    """
+    out = outside(states, box)                                      # [S, T, n]
+    was_inside = np.maximum.accumulate(~out, axis=1)                # inside at some frame <= t
+    left = np.zeros_like(out)
+    left[:, 1:] = out[:, 1:] & was_inside[:, :-1]
+    return left
+
+
 def escaped(states: np.ndarray, box: float) -> np.ndarray:
-    """Whether each boid leaves the cube in some frame: ``[S, T, n, 6]`` -> ``[S, n]``."""
-    return outside(states, box).any(axis=1)
+    """Whether each boid leaves the cube (:func:`leaving`) in some frame: ``[S, T, n, 6]`` -> ``[S, n]``."""
+    return leaving(states, box).any(axis=1)
 
 
 def subswarm_count(states: np.ndarray, radius: float = PERCEPTION_RADIUS, last: int = LAST) -> np.ndarray:
@@ -56,18 +71,19 @@ def subswarm_count(states: np.ndarray, radius: float = PERCEPTION_RADIUS, last: 
 
 def escape_events(pred: np.ndarray, box: float, d_cr: float, dt: float,
                   radius: float = PERCEPTION_RADIUS) -> List[Dict[str, Any]]:
-    """The first exit of every boid that leaves the cube, ``pred [S, T, n, 6]``.
+    """The first exit of every boid that leaves the cube (:func:`leaving`), ``pred [S, T, n, 6]``.
 
-    For each: start ``s``, ``boid``, ``frame`` (first frame outside) and time ``t``, ``wall`` (axis
+    For each: start ``s``, ``boid``, ``frame`` (first leaving frame, >= 1) and time ``t``, ``wall`` (axis
     and sign, e.g. ``+z``), ``neighbours`` (other boids within ``d_cr``, what the policy senses) and
     ``group`` (size of its connected group within ``radius``) at the last frame inside,
     ``outward_speed`` (the displacement across the wall / dt) and ``inside_at_end``.
     """
     out = outside(pred, box)                                        # [S, T, n]
+    left = leaving(pred, box)
     events: List[Dict[str, Any]] = []
-    for s, boid in zip(*np.nonzero(out.any(axis=1))):
-        f = int(np.argmax(out[s, :, boid]))
-        before = pred[s, max(f - 1, 0)]                             # [n, 6]
+    for s, boid in zip(*np.nonzero(left.any(axis=1))):
+        f = int(np.argmax(left[s, :, boid]))
+        before = pred[s, f - 1]                                     # [n, 6], inside by definition
         p = pred[s, f, boid, :3]
         axis = int(np.argmax(np.abs(p) - box))
         d = np.linalg.norm(before[:, :3] - before[boid, :3], axis=-1)
@@ -82,11 +98,18 @@ def escape_events(pred: np.ndarray, box: float, d_cr: float, dt: float,
 
 def size_metrics(pred: np.ndarray, truth: np.ndarray, dt: float, radius: float = PERCEPTION_RADIUS
                  ) -> Dict[str, List[float]]:
-    """Per-start metrics of one size (module docstring) for ``pred``, ``truth [S, T, n, 6]``."""
+    """Per-start metrics of one size (module docstring) for ``pred``, ``truth [S, T, n, 6]``: those
+    of ``final_metrics`` plus ``escaped`` / ``truth_escaped`` (share of boids that leave the cube,
+    :func:`leaving`), ``no_boid_leaves``, ``spawned_outside``, ``subswarms`` / ``truth_subswarms``."""
     spec = get_scenario("boids3d")
     m = final_metrics(spec, pred, truth, last=LAST, dt=dt)
-    m["escaped"] = escaped(pred, spec.box).mean(axis=1).tolist()
-    m["truth_escaped"] = escaped(truth, spec.box).mean(axis=1).tolist()
+    left, truth_left = escaped(pred, spec.box), escaped(truth, spec.box)           # [S, n]
+    m["escaped"] = left.mean(axis=1).tolist()
+    m["truth_escaped"] = truth_left.mean(axis=1).tolist()
+    # Per start: no boid leaves (the goal's test; ``stays_inside`` above is every boid inside in
+    # every frame, which a boid spawned outside fails) and a boid outside in the first frame.
+    m["no_boid_leaves"] = (~left.any(axis=1)).tolist()
+    m["spawned_outside"] = outside(pred[:, 0], spec.box).any(axis=1).tolist()
     m["subswarms"] = subswarm_count(pred, radius).tolist()
     m["truth_subswarms"] = subswarm_count(truth, radius).tolist()
     return m
@@ -97,7 +120,7 @@ def _curves(pred: np.ndarray, truth: np.ndarray, dt: float, box: float, radius: 
     ``CURVE_POINTS`` times (subswarms are costly, so not every frame)."""
     T = pred.shape[1]
     idx = np.unique(np.linspace(0, T - 1, min(CURVE_POINTS, T)).round().astype(int))
-    gone = {k: np.maximum.accumulate(outside(z, box), axis=1)[:, idx].mean(axis=(0, 2)) for k, z in
+    gone = {k: np.maximum.accumulate(leaving(z, box), axis=1)[:, idx].mean(axis=(0, 2)) for k, z in
             (("prediction", pred), ("ground truth", truth))}
     return {"t": (idx * dt).tolist(),
             "subswarms": {"prediction": subgroups(pred[:, idx], radius).mean(0).tolist(),
@@ -132,9 +155,11 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
         pred = rollout_fn(policy, truth[:, 0], steps)
         m = size_metrics(pred, truth, policy.dt, radius)
         row: Dict[str, Any] = {"robots": int(n), "per_start": m,
-                               "starts_inside": int(np.sum(m["stays_inside"])),
-                               "truth_starts_inside": int(np.sum(np.asarray(m["truth_escaped"]) == 0))}
-        row.update({key: describe(v) for key, v in m.items() if key != "stays_inside"})
+                               "starts_inside": int(np.sum(m["no_boid_leaves"])),
+                               "truth_starts_inside": int(np.sum(np.asarray(m["truth_escaped"]) == 0)),
+                               "starts_spawned_outside": int(np.sum(m["spawned_outside"]))}
+        row.update({key: describe(v) for key, v in m.items()
+                    if key not in ("stays_inside", "no_boid_leaves", "spawned_outside")})
         row["amd_rel_error"] = (row["amd_final"]["mean"] - row["truth_amd_final"]["mean"]) / row["truth_amd_final"]["mean"]
         events[str(n)] = escape_events(pred, spec.box, policy.d_cr, policy.dt, radius)
         curves[str(n)] = _curves(pred, truth, policy.dt, spec.box, radius)
@@ -157,7 +182,7 @@ def scaling_study(policy, out: str, sizes: Sequence[int], ics: int, steps: int, 
 
 def _assemble(rows, events, curves, example, settings) -> Dict[str, Any]:
     return {"sizes": [r["robots"] for r in rows], **settings, "rows": rows, "escape_events": events,
-            "curves": curves, "example": example, "goals": GOALS, "goal_check": goal_check(rows, settings["ics"], events),
+            "curves": curves, "example": example, "goals": GOALS, "goal_check": goal_check(rows, settings["ics"]),
             "amd_final_vs_first_size": [r["amd_final"]["mean"] / rows[0]["amd_final"]["mean"] for r in rows]}
 
 
@@ -192,14 +217,13 @@ def merge(studies: Sequence[Dict[str, Any]]) -> Dict[str, Any]:
     return _assemble(rows, events, curves, example, {k: studies[0][k] for k in keys})
 
 
-def goal_check(rows: Sequence[Dict[str, Any]], ics: int,
-               events: Optional[Dict[str, List[Dict[str, Any]]]] = None) -> Dict[str, Any]:
+def goal_check(rows: Sequence[Dict[str, Any]], ics: int) -> Dict[str, Any]:
     """Pass/fail of issue 17's goals at each of ``GOAL_SIZES`` present in ``rows``.
 
-    With the study's ``escape_events`` it also counts ``spawn_outside``: starts whose only exits
-    are at frame 0, i.e. a boid already outside in the first frame, which the policy shares with
-    the ground truth (the Unity spawn fills the ball of radius 5 that touches the walls, and 10
-    frames are discarded), so no learnt boid left the cube there.
+    ``starts_inside`` counts the starts in which no boid leaves the cube (:func:`leaving`: a boid
+    spawned outside, which the Unity spawn ball of radius 5 allows, has not left). ``spawn_outside``
+    (information only, where the row has it): starts with a boid outside in the first frame,
+    shared by the policy and the ground truth.
     """
     need = math.ceil(GOAL_INSIDE_SHARE * ics - 1e-9)
     check: Dict[str, Any] = {}
@@ -210,11 +234,8 @@ def goal_check(rows: Sequence[Dict[str, Any]], ics: int,
             check[f"{n}: amd_rel_error"] = round(float(r["amd_rel_error"]), 4)
             check[f"{n}: inside>={need}/{ics}"] = bool(r["starts_inside"] >= need)
             check[f"{n}: starts_inside"] = int(r["starts_inside"])
-            if events is not None:
-                starts: Dict[int, List[int]] = {}
-                for e in events.get(str(n), []):
-                    starts.setdefault(e["start"], []).append(e["frame"])
-                check[f"{n}: spawn_outside"] = sum(all(f == 0 for f in fr) for fr in starts.values())
+            if "starts_spawned_outside" in r:
+                check[f"{n}: spawn_outside"] = int(r["starts_spawned_outside"])
     return check
 
 
@@ -237,8 +258,7 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
               *(f"{k}: {v}" for k, v in s["goal_check"].items()), "```", ""]
     ev = [e for n in s["sizes"] for e in s["escape_events"][str(n)]]
     if ev:
-        lines += [f"Escapes of learnt boids: {len(ev)} in all, {sum(e['frame'] == 0 for e in ev)} of them boids "
-                  f"already outside in the first frame (shared with the ground truth); sensed neighbours within d_cr just before leaving: "
+        lines += [f"Escapes of learnt boids (inside, then outside): {len(ev)} in all; sensed neighbours within d_cr just before leaving: "
                   f"median {np.median([e['neighbours'] for e in ev]):.0f}, none in "
                   f"{sum(e['neighbours'] == 0 for e in ev)}; group size median "
                   f"{np.median([e['group'] for e in ev]):.0f}; back inside at the end: "

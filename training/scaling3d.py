@@ -11,7 +11,9 @@ frame (:func:`knode_swarm_ros.core.rollout`, all starts at once), and per start:
 
 * ``amd_final`` / ``truth_amd_final``: amd over the last 10 frames;
 * ``pod_kld``: KL(truth || policy) of the POD energies (10 modes);
-* ``escaped`` / ``truth_escaped``: fraction of the boids that are outside the cube in some frame;
+* ``escaped`` / ``truth_escaped``: fraction of the boids that leave the cube (:func:`training.scaling.leaving`:
+  inside in some frame, outside in a later one; a boid spawned outside has not left);
+  ``starts_inside``: starts in which no boid leaves (the goal's count);
 * ``subswarms`` / ``truth_subswarms``: connected groups (boids linked within the boids' perception
   radius 2.5, transitively), mean over the last 10 frames;
 * every escape of a learnt boid (:func:`training.scaling.escape_events`): when, through which wall, how many

@@ -67,7 +67,11 @@ ORACLE = "oracle"
 
 def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tuple[str, str]], out: str,
                       steps: int = 2000, figures: Optional[str] = None, oracle: bool = False,
-                      log=print) -> Dict[str, Any]:
+                      log=print, rollouts: int = 1, perturb: float = 1e-3) -> Dict[str, Any]:
+    """``rollouts`` > 1: that many rollouts per test trajectory, copy 0 from its frame 0 and the others
+    with N(0, ``perturb``^2) on the first positions (:func:`training.grid.perturbed_starts`: boids are
+    chaotic, so one rollout per start says little); every copy is compared with its trajectory."""
+    from .grid import perturbed_starts
     loaded = []
     if oracle:
         loaded.append((ORACLE, "our boids (published preset), dt 1/60", _Oracle()))
@@ -86,7 +90,11 @@ def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tu
         truth = data.states[data.split("test")]
         T = min(steps, truth.shape[1] - 1) + 1
         truth = truth[:, :T]
-        results["data"][dname] = {"file": dpath, "trajectories": int(len(truth)), "frames": T}
+        results["data"][dname] = {"file": dpath, "trajectories": int(len(truth)), "frames": T, "rollouts": rollouts}
+        starts = perturbed_starts(truth[:, 0], rollouts, perturb, 3)           # [S * R, n, 6]
+        truth = np.repeat(truth, rollouts, axis=0)
+        moved = truth.copy()
+        moved[:, 0] = starts
         entry: Dict[str, Any] = {"truth": {k: describe([run_statistics(r)[k] for r in truth]) for k in STATS}}
         entry["truth"]["amd_final"] = describe(amd(truth[:, -10:, :, :3]).mean(1))
         curves[dname] = {"ground truth": amd(truth[..., :3])}
@@ -94,8 +102,8 @@ def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tu
         for pname, _, pol in loaded:
             t0 = time.perf_counter()
             with np.errstate(all="ignore"):
-                pred = (pol.rollout(truth, T - 1) if isinstance(pol, _Oracle) else
-                        rollout(pol, truth[:, 0], T - 1, "boids3d", pol.d_cr, pol.k, pol.tau, pol.dt))
+                pred = (pol.rollout(moved, T - 1) if isinstance(pol, _Oracle) else
+                        rollout(pol, starts, T - 1, "boids3d", pol.d_cr, pol.k, pol.tau, pol.dt))
             finite = bool(np.all(np.isfinite(pred)))
             kl = [pod_kld(truth[s], pred[s]) if finite else float("nan") for s in range(len(truth))]
             inside = np.all(np.abs(pred[..., :3]) <= 5.0 + 1e-9, axis=(1, 2, 3))
@@ -173,7 +181,7 @@ def _summary(path: str, r: Dict[str, Any]) -> None:
              f"Rollouts of {r['steps']} steps (or the ground truth's length) from frame 0. Mean ± std over runs.", ""]
     for dname, entry in r["sets"].items():
         d = r["data"][dname]
-        lines += [f"## {dname}: `{d['file']}`, {d['trajectories']} runs, {d['frames']} frames", "",
+        lines += [f"## {dname}: `{d['file']}`, {d['trajectories']} runs x {d.get('rollouts', 1)} rollouts, {d['frames']} frames", "",
                   "| | final amd | POD-KLD | in cube | " + " | ".join(STATS) + " |",
                   "| --- |" + " --- |" * (3 + len(STATS))]
         for name, e in entry.items():
@@ -181,7 +189,7 @@ def _summary(path: str, r: Dict[str, Any]) -> None:
                 row = [f"{e['amd_final']['mean']:.3f} ± {e['amd_final']['std']:.3f}", "0", "-"]
             else:
                 row = [f"{e['amd_final']['mean']:.3f} ± {e['amd_final']['std']:.3f}",
-                       f"{e['pod_kld']['mean']:.4f} ± {e['pod_kld']['std']:.4f}", f"{e['inside']}/{d['trajectories']}"]
+                       f"{e['pod_kld']['mean']:.4f} ± {e['pod_kld']['std']:.4f}", f"{e['inside']}/{d['trajectories'] * d.get('rollouts', 1)}"]
             row += [f"{e[k]['mean']:.3g}" if k in e else "-" for k in STATS]
             lines.append(f"| {name} | " + " | ".join(row) + " |")
         lines.append("")
@@ -201,11 +209,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--figures", default=None, help="directory of the figures (default --out; '' for none)")
     ap.add_argument("--oracle", action="store_true",
                     help="also roll out our ground-truth boids (published preset, dt 1/60) from the same frames")
+    ap.add_argument("--rollouts", type=int, default=1,
+                    help="rollouts per test trajectory, the others from starts perturbed by 1e-3 (default 1)")
     args = ap.parse_args(argv)
     if args.steps < 10:
         ap.error(f"--steps must be >= 10, got {args.steps}")
+    if args.rollouts < 1:
+        ap.error(f"--rollouts must be >= 1, got {args.rollouts}")
     evaluate_policies(_pairs(args.policy, "policy"), _pairs(args.data, "data"), args.out, args.steps, args.figures,
-                      args.oracle)
+                      args.oracle, rollouts=args.rollouts)
     return 0
 
 
