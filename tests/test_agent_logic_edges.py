@@ -126,3 +126,21 @@ def test_an_agent_lagging_its_neighbours_still_finds_their_delayed_states():
     Z = np.stack([state(80, r) for r in range(4)])
     Y, _ = neighbour_matrix_single(0, state(100, 0), Z, 2, policy.d_cr, policy.k)
     np.testing.assert_array_equal(policy.calls[-1][0][0], Y)
+
+
+def test_the_own_stamp_table_stays_bounded_after_late_own_states():
+    """``stamps`` (own step -> exact stamp, echoed by the command) holds at most 4 horizon
+    entries after any own state that is the newest, even after a burst of late own states in
+    decreasing order (each cut only reaches below the late step itself)."""
+    policy = SumPolicy()
+    logic = logic_for(policy)
+    h = logic.buffer.horizon
+    sizes = {}
+    for phase, steps in (('forward', range(0, 10 * h)), ('late', range(9 * h - 2, 3 * h, -1)),
+                         ('forward again', range(10 * h, 12 * h))):
+        for s in steps:
+            assert logic.receive(0, stamp_ns(s, policy.dt), z(0), wall=0.0) == 'accepted'
+        sizes[phase] = len(logic.stamps)
+    assert sizes['forward'] <= 4 * h and sizes['late'] > 4 * h and sizes['forward again'] <= 4 * h
+    assert min(s for _, s in logic.stamps) >= 12 * h - 1 - 4 * h    # nothing older than that kept
+    assert logic.stamps[(0, 12 * h - 1)] == stamp_ns(12 * h - 1, policy.dt)

@@ -160,18 +160,19 @@ def test_the_launcher_splits_robots_over_hosting_processes():
     hosting.check_netns(None)
 
 
-@pytest.mark.parametrize('tau', [0, 2])
-def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies, tau):
+@pytest.mark.parametrize('tau, timeout, wall0', [(0, 0.5, 0.0), (2, 0.5, 0.0), (0, 2.0, 100.0)])
+def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies, tau, timeout, wall0):
     # Lost states make robots give up on a peer (state_timeout, on the wall clock of the polls),
     # hear it again, and lose their own state: the process files every state once and polls
     # only the robots a message concerns, and each hosted robot must still do what its lone
-    # agent does (same commands, same counters, same notes).
+    # agent does (same commands, same counters, same notes). A frame takes 2 timeouts of wall
+    # time; a timeout above 1 s late on the wall clock catches a deadline of t * timeout.
     from dataclasses import replace as _replace
     base = policies['flock2d']
     policy = _Retimed(base, tau)
     n, hosted = 8, [0, 3, 4, 7]
     ids = list(range(n))
-    config = AgentConfig(0, ids, 'lockstep', state_timeout=0.5)
+    config = AgentConfig(0, ids, 'lockstep', state_timeout=timeout)
     frames = _frames('flock2d', n, 30, seed=4)
     lone = {rid: AgentLogic(_replace(config, robot_id=rid), policy) for rid in hosted}
     host = HostedAgents(hosted, config, policy)
@@ -191,7 +192,7 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
         events_host.extend(host.drain_events())
 
     for s, frame in enumerate(frames):
-        ns, wall = stamp_ns(s, policy.dt), float(s)
+        ns, wall = stamp_ns(s, policy.dt), wall0 + 2 * timeout * s
         order = [r for r in range(n) if (r, s) not in lost]
         rng.shuffle(order)
         for robot in order:
@@ -199,8 +200,8 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
                 logic.receive(robot, ns, frame[robot], None, wall)
             host.receive(robot, ns, frame[robot], None, wall)
             collect(wall)
-        collect(wall + 0.3)   # a timer before the timeout: nothing new
-        collect(wall + 0.6)   # after it: the robots give up on the missing peers
+        collect(wall + 0.6 * timeout)   # a timer before the timeout: nothing new
+        collect(wall + 1.2 * timeout)   # after it: the robots give up on the missing peers
     for rid in hosted:
         assert len(got_host[rid]) == len(got_lone[rid]) >= len(frames) - 2
         assert [c[:3] for c in got_host[rid]] == [c[:3] for c in got_lone[rid]]
