@@ -1,6 +1,7 @@
 """Issue 10, item 4: the recorder applies the agents' checks to every stamp (age, step grid,
 finiteness), so a hostile or stale message can neither invent frames nor lose the recording."""
 import numpy as np
+import pytest
 
 from knode_swarm_ros.nodes.recorder_logic import FrameCollector, swarm_metrics
 
@@ -51,6 +52,15 @@ def test_without_a_clock_the_newest_stamp_is_the_reference():
     assert fc.receive(0, int(1000 * NS), np.ones(4)) == 'too_future'
     assert fc.receive(0, int(0.5 * NS), np.ones(4)) == 'duplicate'  # within the window: filed normally
     assert fc.build(1)[0].shape[0] == 101
+
+
+@pytest.mark.parametrize('now_ns, expected', [(None, 'accepted'), (0, 'accepted'), (-NS, 'accepted'),
+                                              (1, 'too_future'), (int(9.6 * NS), 'accepted')])
+def test_any_positive_clock_reading_is_a_clock(now_ns, expected):
+    """A state 10 s ahead of an empty recorder: a clock (now_ns > 0, one nanosecond included)
+    allows future_tolerance 0.5 s ahead; without one (None or <= 0) nothing is there to compare."""
+    fc = FrameCollector('flock2d', 2, DT, max_age=5.0, future_tolerance=0.5)
+    assert fc.receive(0, 10 * NS, np.ones(4), now_ns) == expected
 
 
 def test_future_off_grid_and_non_finite_stamps_are_dropped_and_counted():
