@@ -144,3 +144,25 @@ def test_the_own_stamp_table_stays_bounded_after_late_own_states():
     assert sizes['forward'] <= 4 * h and sizes['late'] > 4 * h and sizes['forward again'] <= 4 * h
     assert min(s for _, s in logic.stamps) >= 12 * h - 1 - 4 * h    # nothing older than that kept
     assert logic.stamps[(0, 12 * h - 1)] == stamp_ns(12 * h - 1, policy.dt)
+
+
+def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
+    """Robot 3 sends its state of step 2 early, then loses step 1: it is left out at step 1,
+    and at step 2 its state is already filed, so every needed state is here (more than the
+    robots waited for) and the command comes at once, with robot 3 among the neighbours."""
+    policy = SumPolicy()
+    logic = logic_for(policy, state_timeout=0.5)
+    dt = policy.dt
+    for r in range(4):
+        logic.receive(r, stamp_ns(0, dt), z(r), wall=0.0)
+    assert logic.lockstep_poll(0.0).step == 0
+    logic.receive(3, stamp_ns(2, dt), z(3.2), wall=0.0)                # early
+    for r in (0, 1, 2):
+        logic.receive(r, stamp_ns(1, dt), z(r), wall=10.0)             # robot 3's step 1 is lost
+    assert logic.lockstep_poll(10.0) is None
+    assert logic.lockstep_poll(10.5).neighbours == 2 and logic.left_out == {3}
+    for r in (0, 1, 2):
+        logic.receive(r, stamp_ns(2, dt), z(r), wall=20.0)
+    cmd = logic.lockstep_poll(20.0)
+    assert cmd is not None and cmd.step == 2 and cmd.neighbours == 3
+    np.testing.assert_allclose(cmd.value, [1 + 2 + 3.2, 0.0])
