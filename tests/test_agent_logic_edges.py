@@ -4,12 +4,15 @@ joins a run already under way.
 Each test here fails on a mutation that the broader tests in test_nodes_logic.py let
 through (a `<` turned into `<=`, the first-step clamp of the delayed step removed).
 """
+import re
+
 import numpy as np
+import pytest
 
 from knode_swarm_ros.core import neighbour_matrix_single
 from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import stamp_ns
+from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
 
 SEC = 1_000_000_000
 
@@ -142,7 +145,8 @@ def test_the_own_stamp_table_stays_bounded_after_late_own_states():
             assert logic.receive(0, stamp_ns(s, policy.dt), z(0), wall=0.0) == 'accepted'
         sizes[phase] = len(logic.stamps)
     assert sizes['forward'] <= 4 * h and sizes['late'] > 4 * h and sizes['forward again'] <= 4 * h
-    assert min(s for _, s in logic.stamps) >= 12 * h - 1 - 4 * h    # nothing older than that kept
+    # the first own state after the burst cut at its step - horizon (10 h - h): kept from there on
+    assert sorted(s for _, s in logic.stamps) == list(range(9 * h, 12 * h))
     assert logic.stamps[(0, 12 * h - 1)] == stamp_ns(12 * h - 1, policy.dt)
 
 
@@ -166,3 +170,10 @@ def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
     cmd = logic.lockstep_poll(20.0)
     assert cmd is not None and cmd.step == 2 and cmd.neighbours == 3
     np.testing.assert_allclose(cmd.value, [1 + 2 + 3.2, 0.0])
+
+
+@pytest.mark.parametrize('ids, shown', [([0, 1], '0..1'), ([4, 5, 6], '4..6'), ([2], '[2]'), ([0, 2], '[0, 2]'),
+                                        ([3, 1, 2], '[3, 1, 2]')])
+def test_an_id_outside_the_swarm_names_the_ids_as_a_range_when_they_are_one(ids, shown):
+    with pytest.raises(ConfigError, match=re.escape(f"is not one of the swarm's robot ids {shown} (")):
+        AgentLogic(AgentConfig(9, ids), SumPolicy())

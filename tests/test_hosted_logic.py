@@ -76,6 +76,7 @@ def test_hosted_robots_equal_lone_agents_in_realtime(policies):
     frames = _frames('flock2d', n, 20, seed=1)
     lone = {rid: AgentLogic(AgentConfig(rid, ids, 'realtime'), policy) for rid in hosted}
     host = HostedAgents(hosted, AgentConfig(0, ids, 'realtime'), policy)
+    assert host.tick(1) == [] and all(logic.tick(1) is None for logic in lone.values())  # no own state yet
     for s, frame in enumerate(frames):
         ns = stamp_ns(s, policy.dt)
         for robot in range(n):
@@ -92,6 +93,13 @@ def test_hosted_robots_equal_lone_agents_in_realtime(policies):
                                                                                 want.neighbours)
             assert np.allclose(got[rid].value, want.value, rtol=1e-5, atol=1e-5)  # batch of 4 vs 1
     assert host.calls == len(frames)
+    late = stamp_ns(len(frames) + 100, policy.dt)  # every own state 1 s old: each robot stops, as alone
+    got = dict(host.tick(late))
+    assert sorted(got) == hosted
+    for rid, logic in lone.items():
+        want = logic.tick(late)
+        # the brake undoes the held command over 1 s, so the batch's 1e-5 differences grow 100-fold
+        assert want.stop and got[rid].stop and np.allclose(got[rid].value, want.value, rtol=1e-3, atol=1e-3)
 
 
 @pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])

@@ -102,3 +102,13 @@ def test_every_counter_is_the_number_of_times_its_outcome_was_returned():
     assert returned == Counter({'accepted': 3, 'duplicate': 1, 'unknown_id': 1, 'bad_size': 1,
                                 'non_finite': 1, 'too_old': 1, 'too_future': 1, 'off_grid': 1})
     assert fc.counters == {k: returned.get(k, 0) for k in fc.counters}
+
+
+@pytest.mark.parametrize('steps, every', [([7], 1), ([0, 5, 10], 5), ([3, 7], 4), ([2, 4, 9], 1)])
+def test_the_grid_spacing_is_the_gcd_of_the_step_gaps_and_1_for_a_single_step(steps, every):
+    fc = FrameCollector('flock2d', 1, DT)
+    for s in steps:
+        assert fc.add(0, s, np.zeros(4)) == 'accepted'
+    states, info = fc.build()
+    assert fc.infer_every() == every and info['frame_every'] == every
+    assert states.shape[0] == (steps[-1] - steps[0]) // every + 1
