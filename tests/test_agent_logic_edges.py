@@ -177,3 +177,23 @@ def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
 def test_an_id_outside_the_swarm_names_the_ids_as_a_range_when_they_are_one(ids, shown):
     with pytest.raises(ConfigError, match=re.escape(f"is not one of the swarm's robot ids {shown} (")):
         AgentLogic(AgentConfig(9, ids), SumPolicy())
+
+
+@pytest.mark.parametrize('vx, vy, period_ms, limit', [(-0.6232744625373522, 0.0413259793472436, 81, 1.0),
+                                                      (0.5312512156361892, 0.08905603873921995, 187, 5.0),
+                                                      (-1.6979398304606041, 0.030887319354812974, 162, 5.0)])
+def test_a_braking_stop_ends_exactly_at_rest(vx, vy, period_ms, limit):
+    """A stale own state: the robot brakes at most ``limit`` per axis each tick; once an axis'
+    brake is below the limit (its velocity used up), every later command on it is exactly 0,
+    not float dust (these cases leave ~1e-16 behind without the rest threshold)."""
+    logic = logic_for(SumPolicy(), mode='realtime', state_timeout=0.5, command_limit=limit)
+    for r in range(4):
+        logic.receive(r, 0, np.array([float(r), 0.3 * r, vx if r == 0 else 0.0, vy if r == 0 else 0.0]), 0)
+    logic.tick(0)
+    values = np.array([logic.tick(SEC + k * period_ms * 1_000_000).value for k in range(8)])
+    assert logic.last_command.stop and np.all(np.abs(values) <= limit)
+    finished = [axis for axis in values.T if np.any(np.abs(axis) < limit)]
+    assert finished
+    for axis in finished:
+        first = np.flatnonzero(np.abs(axis) < limit)[0]
+        assert np.all(axis[first + 1:] == 0.0), axis
