@@ -523,3 +523,24 @@ def test_shipped_config_files_are_valid_parameter_files():
             assert params['scenario'] == scenario
             assert all(not isinstance(v, dict) for v in params.values())
     assert json.dumps(params)  # plain values only
+
+
+def test_simulator_latency_dedup_set_is_cleared_only_past_100000_samples():
+    """One latency sample per (robot, step): the set that remembers them holds up to 100 000
+    and is cleared at the next one, so a repeat of the 100 000th pair is still not counted."""
+    n = 1000
+    sim = SwarmSim('flock2d', np.zeros((n, 4)), 0.01, 'realtime')
+    u = np.zeros(2)
+    for s in range(100):
+        sim.note_published(float(s))
+        ns = stamp_ns(s, 0.01)
+        for r in range(n):
+            sim.offer(r, ns, u, wall=s + 0.5)
+        sim.advance()
+    assert len(sim.latency) == 100_000 and set(sim.latency) == {0.5}
+    sim.offer(n - 1, stamp_ns(99, 0.01), u, wall=200.0)   # the same pair again: no second sample
+    assert len(sim.latency) == 100_000
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=200.0)      # step 100 was never published: no sample
+    sim.note_published(300.0)
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=300.25)     # the 100 001st pair: counted, the set cleared
+    assert len(sim.latency) == 100_001 and sim.latency[-1] == 0.25
