@@ -8,6 +8,7 @@
 * ``ids`` as a list or a range; bad ids are refused with a message naming the parameter.
 """
 import random
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -265,3 +266,28 @@ def test_hosted_commands_are_cleaned_like_a_lone_agents(policies):
         assert lone[rid].drain_events() == host.logics[rid].drain_events()
     c = [lone[rid].counters for rid in hosted]
     assert sum(x['non_finite_command'] for x in c) > 0 and sum(x['clipped'] for x in c) > 0
+
+
+def test_a_hosted_robot_missing_its_own_delayed_state_answers_when_the_last_peer_state_arrives(policies):
+    """tau = 1; robot 0's state of step 1 is lost, robot 2's (not hosted) arrives after robot 0's
+    state of step 2. Robot 0 then needs only the other n - 1 states of step 1: the process must
+    poll it when the late one arrives (no message concerns it), at the same receive as a lone agent."""
+    policy = _Retimed(policies['flock2d'], 1)
+    ids, hosted = [0, 1, 2], [0, 1]
+    config = AgentConfig(0, ids, 'lockstep', state_timeout=0.5)
+    host = HostedAgents(hosted, config, policy, hold_s=0.0)  # no batching wait: answers as soon as due
+    lone = {rid: AgentLogic(replace(config, robot_id=rid), policy) for rid in hosted}
+    frames = _frames('flock2d', 3, 2, seed=2)
+    sends = [(0, 0), (1, 0), (2, 0), (1, 1), (0, 2), (1, 2), (2, 2), (2, 1)]
+    got_host, got_lone = [], []
+    for i, (robot, s) in enumerate(sends):
+        ns = stamp_ns(s, policy.dt)
+        host.receive(robot, ns, frames[s][robot], None, 0.0)
+        got_host += [(i, rid, cmd.step, cmd.neighbours) for rid, cmd in host.lockstep_poll(0.0)]
+        for rid, logic in lone.items():
+            logic.receive(robot, ns, frames[s][robot], None, 0.0)
+            cmd = logic.lockstep_poll(0.0)
+            if cmd is not None:
+                got_lone.append((i, rid, cmd.step, cmd.neighbours))
+    assert (7, 0, 2, 2) in got_lone             # robot 0's step 2, at the late state's arrival
+    assert sorted(got_host) == sorted(got_lone)
