@@ -4,12 +4,15 @@ joins a run already under way.
 Each test here fails on a mutation that the broader tests in test_nodes_logic.py let
 through (a `<` turned into `<=`, the first-step clamp of the delayed step removed).
 """
+import re
+
 import numpy as np
+import pytest
 
 from knode_swarm_ros.core import neighbour_matrix_single
 from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import stamp_ns
+from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
 
 SEC = 1_000_000_000
 
@@ -126,3 +129,71 @@ def test_an_agent_lagging_its_neighbours_still_finds_their_delayed_states():
     Z = np.stack([state(80, r) for r in range(4)])
     Y, _ = neighbour_matrix_single(0, state(100, 0), Z, 2, policy.d_cr, policy.k)
     np.testing.assert_array_equal(policy.calls[-1][0][0], Y)
+
+
+def test_the_own_stamp_table_stays_bounded_after_late_own_states():
+    """``stamps`` (own step -> exact stamp, echoed by the command) holds at most 4 horizon
+    entries after any own state that is the newest, even after a burst of late own states in
+    decreasing order (each cut only reaches below the late step itself)."""
+    policy = SumPolicy()
+    logic = logic_for(policy)
+    h = logic.buffer.horizon
+    sizes = {}
+    for phase, steps in (('forward', range(0, 10 * h)), ('late', range(9 * h - 2, 3 * h, -1)),
+                         ('forward again', range(10 * h, 12 * h))):
+        for s in steps:
+            assert logic.receive(0, stamp_ns(s, policy.dt), z(0), wall=0.0) == 'accepted'
+        sizes[phase] = len(logic.stamps)
+    assert sizes['forward'] <= 4 * h and sizes['late'] > 4 * h and sizes['forward again'] <= 4 * h
+    # the first own state after the burst cut at its step - horizon (10 h - h): kept from there on
+    assert sorted(s for _, s in logic.stamps) == list(range(9 * h, 12 * h))
+    assert logic.stamps[(0, 12 * h - 1)] == stamp_ns(12 * h - 1, policy.dt)
+
+
+def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
+    """Robot 3 sends its state of step 2 early, then loses step 1: it is left out at step 1,
+    and at step 2 its state is already filed, so every needed state is here (more than the
+    robots waited for) and the command comes at once, with robot 3 among the neighbours."""
+    policy = SumPolicy()
+    logic = logic_for(policy, state_timeout=0.5)
+    dt = policy.dt
+    for r in range(4):
+        logic.receive(r, stamp_ns(0, dt), z(r), wall=0.0)
+    assert logic.lockstep_poll(0.0).step == 0
+    logic.receive(3, stamp_ns(2, dt), z(3.2), wall=0.0)                # early
+    for r in (0, 1, 2):
+        logic.receive(r, stamp_ns(1, dt), z(r), wall=10.0)             # robot 3's step 1 is lost
+    assert logic.lockstep_poll(10.0) is None
+    assert logic.lockstep_poll(10.5).neighbours == 2 and logic.left_out == {3}
+    for r in (0, 1, 2):
+        logic.receive(r, stamp_ns(2, dt), z(r), wall=20.0)
+    cmd = logic.lockstep_poll(20.0)
+    assert cmd is not None and cmd.step == 2 and cmd.neighbours == 3
+    np.testing.assert_allclose(cmd.value, [1 + 2 + 3.2, 0.0])
+
+
+@pytest.mark.parametrize('ids, shown', [([0, 1], '0..1'), ([4, 5, 6], '4..6'), ([2], '[2]'), ([0, 2], '[0, 2]'),
+                                        ([3, 1, 2], '[3, 1, 2]')])
+def test_an_id_outside_the_swarm_names_the_ids_as_a_range_when_they_are_one(ids, shown):
+    with pytest.raises(ConfigError, match=re.escape(f"is not one of the swarm's robot ids {shown} (")):
+        AgentLogic(AgentConfig(9, ids), SumPolicy())
+
+
+@pytest.mark.parametrize('vx, vy, period_ms, limit', [(-0.6232744625373522, 0.0413259793472436, 81, 1.0),
+                                                      (0.5312512156361892, 0.08905603873921995, 187, 5.0),
+                                                      (-1.6979398304606041, 0.030887319354812974, 162, 5.0)])
+def test_a_braking_stop_ends_exactly_at_rest(vx, vy, period_ms, limit):
+    """A stale own state: the robot brakes at most ``limit`` per axis each tick; once an axis'
+    brake is below the limit (its velocity used up), every later command on it is exactly 0,
+    not float dust (these cases leave ~1e-16 behind without the rest threshold)."""
+    logic = logic_for(SumPolicy(), mode='realtime', state_timeout=0.5, command_limit=limit)
+    for r in range(4):
+        logic.receive(r, 0, np.array([float(r), 0.3 * r, vx if r == 0 else 0.0, vy if r == 0 else 0.0]), 0)
+    logic.tick(0)
+    values = np.array([logic.tick(SEC + k * period_ms * 1_000_000).value for k in range(8)])
+    assert logic.last_command.stop and np.all(np.abs(values) <= limit)
+    finished = [axis for axis in values.T if np.any(np.abs(axis) < limit)]
+    assert finished
+    for axis in finished:
+        first = np.flatnonzero(np.abs(axis) < limit)[0]
+        assert np.all(axis[first + 1:] == 0.0), axis

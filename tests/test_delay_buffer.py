@@ -72,3 +72,12 @@ def test_a_step_of_zero_or_less_and_a_negative_delay_are_refused():
     with pytest.raises(ValueError, match='tau must be >= 0'):
         DelayBuffer(dt=0.1, tau=-1)
     assert DelayBuffer(dt=0.1, tau=0).tau == 0
+
+
+@pytest.mark.parametrize('tau, horizon, kept', [(0, 0, 1), (2, 0, 3), (2, 2, 3), (2, 3, 3), (1, 5, 5)])
+def test_the_horizon_is_at_least_tau_plus_one_steps(tau, horizon, kept):
+    """History kept behind the newest state: ``max(horizon, tau + 1)`` steps, never fewer."""
+    buf = DelayBuffer(dt=1.0, tau=tau, horizon=horizon)
+    for s in range(10):
+        buf.add(0, float(s), [float(s)])
+    assert [t for t in range(10) if buf.get(0, t) is not None] == list(range(9 - kept, 10))

@@ -8,6 +8,7 @@
 * ``ids`` as a list or a range; bad ids are refused with a message naming the parameter.
 """
 import random
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -76,6 +77,7 @@ def test_hosted_robots_equal_lone_agents_in_realtime(policies):
     frames = _frames('flock2d', n, 20, seed=1)
     lone = {rid: AgentLogic(AgentConfig(rid, ids, 'realtime'), policy) for rid in hosted}
     host = HostedAgents(hosted, AgentConfig(0, ids, 'realtime'), policy)
+    assert host.tick(1) == [] and all(logic.tick(1) is None for logic in lone.values())  # no own state yet
     for s, frame in enumerate(frames):
         ns = stamp_ns(s, policy.dt)
         for robot in range(n):
@@ -92,6 +94,13 @@ def test_hosted_robots_equal_lone_agents_in_realtime(policies):
                                                                                 want.neighbours)
             assert np.allclose(got[rid].value, want.value, rtol=1e-5, atol=1e-5)  # batch of 4 vs 1
     assert host.calls == len(frames)
+    late = stamp_ns(len(frames) + 100, policy.dt)  # every own state 1 s old: each robot stops, as alone
+    got = dict(host.tick(late))
+    assert sorted(got) == hosted
+    for rid, logic in lone.items():
+        want = logic.tick(late)
+        # the brake undoes the held command over 1 s, so the batch's 1e-5 differences grow 100-fold
+        assert want.stop and got[rid].stop and np.allclose(got[rid].value, want.value, rtol=1e-3, atol=1e-3)
 
 
 @pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
@@ -160,18 +169,19 @@ def test_the_launcher_splits_robots_over_hosting_processes():
     hosting.check_netns(None)
 
 
-@pytest.mark.parametrize('tau', [0, 2])
-def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies, tau):
+@pytest.mark.parametrize('tau, timeout, wall0', [(0, 0.5, 0.0), (2, 0.5, 0.0), (0, 2.0, 100.0)])
+def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies, tau, timeout, wall0):
     # Lost states make robots give up on a peer (state_timeout, on the wall clock of the polls),
     # hear it again, and lose their own state: the process files every state once and polls
     # only the robots a message concerns, and each hosted robot must still do what its lone
-    # agent does (same commands, same counters, same notes).
+    # agent does (same commands, same counters, same notes). A frame takes 2 timeouts of wall
+    # time; a timeout above 1 s late on the wall clock catches a deadline of t * timeout.
     from dataclasses import replace as _replace
     base = policies['flock2d']
     policy = _Retimed(base, tau)
     n, hosted = 8, [0, 3, 4, 7]
     ids = list(range(n))
-    config = AgentConfig(0, ids, 'lockstep', state_timeout=0.5)
+    config = AgentConfig(0, ids, 'lockstep', state_timeout=timeout)
     frames = _frames('flock2d', n, 30, seed=4)
     lone = {rid: AgentLogic(_replace(config, robot_id=rid), policy) for rid in hosted}
     host = HostedAgents(hosted, config, policy)
@@ -191,7 +201,7 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
         events_host.extend(host.drain_events())
 
     for s, frame in enumerate(frames):
-        ns, wall = stamp_ns(s, policy.dt), float(s)
+        ns, wall = stamp_ns(s, policy.dt), wall0 + 2 * timeout * s
         order = [r for r in range(n) if (r, s) not in lost]
         rng.shuffle(order)
         for robot in order:
@@ -199,8 +209,8 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
                 logic.receive(robot, ns, frame[robot], None, wall)
             host.receive(robot, ns, frame[robot], None, wall)
             collect(wall)
-        collect(wall + 0.3)   # a timer before the timeout: nothing new
-        collect(wall + 0.6)   # after it: the robots give up on the missing peers
+        collect(wall + 0.6 * timeout)   # a timer before the timeout: nothing new
+        collect(wall + 1.2 * timeout)   # after it: the robots give up on the missing peers
     for rid in hosted:
         assert len(got_host[rid]) == len(got_lone[rid]) >= len(frames) - 2
         assert [c[:3] for c in got_host[rid]] == [c[:3] for c in got_lone[rid]]
@@ -256,3 +266,28 @@ def test_hosted_commands_are_cleaned_like_a_lone_agents(policies):
         assert lone[rid].drain_events() == host.logics[rid].drain_events()
     c = [lone[rid].counters for rid in hosted]
     assert sum(x['non_finite_command'] for x in c) > 0 and sum(x['clipped'] for x in c) > 0
+
+
+def test_a_hosted_robot_missing_its_own_delayed_state_answers_when_the_last_peer_state_arrives(policies):
+    """tau = 1; robot 0's state of step 1 is lost, robot 2's (not hosted) arrives after robot 0's
+    state of step 2. Robot 0 then needs only the other n - 1 states of step 1: the process must
+    poll it when the late one arrives (no message concerns it), at the same receive as a lone agent."""
+    policy = _Retimed(policies['flock2d'], 1)
+    ids, hosted = [0, 1, 2], [0, 1]
+    config = AgentConfig(0, ids, 'lockstep', state_timeout=0.5)
+    host = HostedAgents(hosted, config, policy, hold_s=0.0)  # no batching wait: answers as soon as due
+    lone = {rid: AgentLogic(replace(config, robot_id=rid), policy) for rid in hosted}
+    frames = _frames('flock2d', 3, 2, seed=2)
+    sends = [(0, 0), (1, 0), (2, 0), (1, 1), (0, 2), (1, 2), (2, 2), (2, 1)]
+    got_host, got_lone = [], []
+    for i, (robot, s) in enumerate(sends):
+        ns = stamp_ns(s, policy.dt)
+        host.receive(robot, ns, frames[s][robot], None, 0.0)
+        got_host += [(i, rid, cmd.step, cmd.neighbours) for rid, cmd in host.lockstep_poll(0.0)]
+        for rid, logic in lone.items():
+            logic.receive(robot, ns, frames[s][robot], None, 0.0)
+            cmd = logic.lockstep_poll(0.0)
+            if cmd is not None:
+                got_lone.append((i, rid, cmd.step, cmd.neighbours))
+    assert (7, 0, 2, 2) in got_lone             # robot 0's step 2, at the late state's arrival
+    assert sorted(got_host) == sorted(got_lone)

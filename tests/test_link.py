@@ -148,3 +148,55 @@ def test_a_radio_range_below_one_metre_is_applied():
     assert model.fate([0.0, 0.0], [0.3, 0.41])[0] == 'out_of_range'
     assert model.fate([0.0, 0.0], None)[0] == 'delivered'               # no positions: no range check
     assert model.counters == {'offered': 3, 'out_of_range': 1, 'lost': 0, 'delivered': 2}
+
+
+@pytest.mark.parametrize('config, positions, expected', [
+    (LinkConfig(range=1.0, delay=3.0), ([0.0, 0.0], [2.0, 0.0]), ('out_of_range', 0.0)),
+    (LinkConfig(loss=0.999999, delay=3.0, seed=1), (None, None), ('lost', 0.0)),
+    (LinkConfig(range=1.0, delay=3.0), ([0.0, 0.0], [1.0, 0.0]), ('delivered', 3.0)),
+])
+def test_a_message_not_delivered_has_no_delay(config, positions, expected):
+    model = LinkModel(config)
+    assert model.fate(*positions) == expected
+    assert model.counters[expected[0]] == 1 and model.delays == [expected[1]] * (expected[0] == 'delivered')
+
+
+@pytest.mark.parametrize('delay, timeout, heard', [(50, None, True), (51, None, False), (5, 5, True), (6, 5, False)])
+def test_a_peer_is_heard_while_its_newest_state_is_at_most_timeout_steps_old(delay, timeout, heard):
+    """Every message arrives exactly ``delay`` steps late: from step ``delay`` on, the peers are
+    neighbours iff delay <= timeout_steps (default 50: the agent's 0.5 s state_timeout at dt 0.01)."""
+    log = []
+    extra = {} if timeout is None else {'timeout_steps': timeout}
+    link_rollout(_recording_policy(log), _swarm(S=1, n=3, seed=6), delay + 3, 'flock2d', 100.0, 3, 0, 0.01,
+                 LinkConfig(delay=float(delay)), **extra)
+    assert [bool(mask[:, 1:].all()) for _, mask in log] == [False] * delay + [heard] * 3
+    assert not any(mask[:, 1:].any() for _, mask in log[:delay])
+
+
+@pytest.mark.parametrize('delay, jitter, tau', [(0, 3, 0), (0, 2, 2), (1, 2, 1), (2, 0, 3)])
+def test_link_rollout_hears_the_newest_arrived_state_by_brute_force(delay, jitter, tau):
+    """The rollout updates what each robot holds only from the send steps that can have become
+    usable at step t; the definition, checked here over every past send step: robot i holds
+    robot j's newest state sent at s <= max(t - tau, 0) that has arrived (s + lag <= t)."""
+    S, n, steps, seed = 2, 4, 14, 9
+    log = []
+    states, _ = link_rollout(_recording_policy(log), _swarm(S=S, n=n, seed=3), steps, 'flock2d', 100.0, n, tau,
+                             0.01, LinkConfig(delay=float(delay), jitter=float(jitter), seed=seed))
+    rng = np.random.default_rng(seed)   # the rollout's draws: one lag per (swarm, receiver, sender) per step
+    arrival = np.stack([t + delay + (rng.integers(0, jitter + 1, size=(S, n, n)) if jitter else np.zeros((S, n, n)))
+                        for t in range(steps + 1)])
+    for t, (Y, mask) in enumerate(log):
+        Y, mask, newest = Y.reshape(S, n, n, 4), mask.reshape(S, n, n), max(t - tau, 0)
+        for a in range(S):
+            for i in range(n):
+                held = [max((s for s in range(newest + 1) if arrival[s, a, i, j] <= t), default=-1)
+                        for j in range(n)]
+                want = {tuple(states[a, held[j], j]) for j in range(n) if j != i and held[j] >= 0}
+                assert {tuple(row) for row in Y[a, i, 1:][mask[a, i, 1:]]} == want, (t, a, i)
+
+
+def test_the_delay_statistics_keep_the_first_100000_delays():
+    model = LinkModel(LinkConfig(delay=0.25))
+    for _ in range(100_001):
+        model.fate()
+    assert model.counters['delivered'] == 100_001 and len(model.delays) == 100_000

@@ -294,6 +294,9 @@ def test_simulator_lockstep_bookkeeping_lost_and_rejoined_robots():
     assert sim.offer(1, 0, [np.nan, 0]) == 'non_finite'
     assert sim.offer(1, 0, [0, 0, 0]) == 'bad_size'
     assert sim.waiting() == [1] and not sim.can_advance()
+    # each counter is the number of times its outcome was returned, from 0
+    assert sim.counters.__dict__ == dict(accepted=1, unknown_id=1, bad_size=1, non_finite=1, stale=1, future=1,
+                                         rejoined=0, zeroed=0, lost_events=0)
     sim.note_published(100.0)
     assert sim.overdue(101.0, 5.0) == [] and sim.overdue(106.0, 5.0) == [1]
     sim.declare_lost([1])
@@ -359,6 +362,31 @@ def test_ground_truth_mode_steps_the_ground_truth():
         make_ground_truth('flock2d', z0, 'nope')
 
 
+@pytest.mark.parametrize('limit, kept', [(None, None), (0.0, None), (0.5, 0.5), (-0.5, 'refused'),
+                                         (-1.0, 'refused'), (float('inf'), 'refused'), (float('nan'), 'refused')])
+def test_simulator_stop_limit_is_none_zero_or_a_finite_positive_value(limit, kept):
+    z0 = np.array([z2(0, 0, 1, 0)])
+    if kept == 'refused':
+        with pytest.raises(ConfigError, match="'command_limit' must be >= 0"):
+            SwarmSim('flock2d', z0, 0.01, 'realtime', stop_limit=limit)
+    else:
+        assert SwarmSim('flock2d', z0, 0.01, 'realtime', stop_limit=limit).stop_limit == kept
+
+
+def test_simulator_latency_table_keeps_the_newest_257_to_512_published_steps():
+    """A command stamped with step s gives a latency sample while step s's publish time is
+    kept: all of the first 512 steps, then the table drops its oldest 256 at 513 entries."""
+    sim = SwarmSim('flock2d', np.array([z2(0, 0), z2(3, 0)]), 0.01, 'realtime')
+    for s in range(512):
+        sim.note_published(float(s))
+        sim.advance()
+    sim.offer(0, stamp_ns(0, 0.01), [0.0, 0.0], wall=1000.0)        # 512 kept: step 0 among them
+    sim.note_published(512.0)                                        # 513: steps 0..255 dropped
+    sim.offer(1, stamp_ns(255, 0.01), [0.0, 0.0], wall=1000.0)
+    sim.offer(1, stamp_ns(256, 0.01), [0.0, 0.0], wall=1000.0)
+    assert sim.latency == [1000.0, 1000.0 - 256]
+
+
 def test_initial_state_from_file_checks_the_file(tmp_path):
     from knode_swarm_ros.core import save_trajectories
     states = np.random.default_rng(0).normal(size=(2, 3, 4, 4))
@@ -366,8 +394,9 @@ def test_initial_state_from_file_checks_the_file(tmp_path):
     save_trajectories(path, states, 0.01, 'flock2d')
     z0, where, traj = initial_state_from_file(f'{path}:1', 'flock2d')
     assert np.array_equal(z0, states[1, 0]) and traj == 1
-    with pytest.raises(ConfigError, match='trajectory 2 does not exist'):
-        initial_state_from_file(f'{path}:2', 'flock2d')
+    for traj in (2, 3, 10):  # every index past the end, not only the first one
+        with pytest.raises(ConfigError, match=rf'trajectory {traj} does not exist \(.* holds 2, indices 0\.\.1\)'):
+            initial_state_from_file(f'{path}:{traj}', 'flock2d')
     with pytest.raises(ConfigError, match="'robots' = 5 but trajectory 0"):
         initial_state_from_file(str(path), 'flock2d', robots=5)
     with pytest.raises(ConfigError, match="field 'scenario'"):
@@ -494,3 +523,24 @@ def test_shipped_config_files_are_valid_parameter_files():
             assert params['scenario'] == scenario
             assert all(not isinstance(v, dict) for v in params.values())
     assert json.dumps(params)  # plain values only
+
+
+def test_simulator_latency_dedup_set_is_cleared_only_past_100000_samples():
+    """One latency sample per (robot, step): the set that remembers them holds up to 100 000
+    and is cleared at the next one, so a repeat of the 100 000th pair is still not counted."""
+    n = 1000
+    sim = SwarmSim('flock2d', np.zeros((n, 4)), 0.01, 'realtime')
+    u = np.zeros(2)
+    for s in range(100):
+        sim.note_published(float(s))
+        ns = stamp_ns(s, 0.01)
+        for r in range(n):
+            sim.offer(r, ns, u, wall=s + 0.5)
+        sim.advance()
+    assert len(sim.latency) == 100_000 and set(sim.latency) == {0.5}
+    sim.offer(n - 1, stamp_ns(99, 0.01), u, wall=200.0)   # the same pair again: no second sample
+    assert len(sim.latency) == 100_000
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=200.0)      # step 100 was never published: no sample
+    sim.note_published(300.0)
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=300.25)     # the 100 001st pair: counted, the set cleared
+    assert len(sim.latency) == 100_001 and sim.latency[-1] == 0.25

@@ -1,6 +1,7 @@
 """Issue 10, item 4: the recorder applies the agents' checks to every stamp (age, step grid,
 finiteness), so a hostile or stale message can neither invent frames nor lose the recording."""
 import numpy as np
+import pytest
 
 from knode_swarm_ros.nodes.recorder_logic import FrameCollector, swarm_metrics
 
@@ -53,6 +54,15 @@ def test_without_a_clock_the_newest_stamp_is_the_reference():
     assert fc.build(1)[0].shape[0] == 101
 
 
+@pytest.mark.parametrize('now_ns, expected', [(None, 'accepted'), (0, 'accepted'), (-NS, 'accepted'),
+                                              (1, 'too_future'), (int(9.6 * NS), 'accepted')])
+def test_any_positive_clock_reading_is_a_clock(now_ns, expected):
+    """A state 10 s ahead of an empty recorder: a clock (now_ns > 0, one nanosecond included)
+    allows future_tolerance 0.5 s ahead; without one (None or <= 0) nothing is there to compare."""
+    fc = FrameCollector('flock2d', 2, DT, max_age=5.0, future_tolerance=0.5)
+    assert fc.receive(0, 10 * NS, np.ones(4), now_ns) == expected
+
+
 def test_future_off_grid_and_non_finite_stamps_are_dropped_and_counted():
     fc = FrameCollector('flock2d', 2, DT, future_tolerance=0.5)
     _run(fc, 10, n=2)
@@ -92,3 +102,13 @@ def test_every_counter_is_the_number_of_times_its_outcome_was_returned():
     assert returned == Counter({'accepted': 3, 'duplicate': 1, 'unknown_id': 1, 'bad_size': 1,
                                 'non_finite': 1, 'too_old': 1, 'too_future': 1, 'off_grid': 1})
     assert fc.counters == {k: returned.get(k, 0) for k in fc.counters}
+
+
+@pytest.mark.parametrize('steps, every', [([7], 1), ([0, 5, 10], 5), ([3, 7], 4), ([2, 4, 9], 1)])
+def test_the_grid_spacing_is_the_gcd_of_the_step_gaps_and_1_for_a_single_step(steps, every):
+    fc = FrameCollector('flock2d', 1, DT)
+    for s in steps:
+        assert fc.add(0, s, np.zeros(4)) == 'accepted'
+    states, info = fc.build()
+    assert fc.infer_every() == every and info['frame_every'] == every
+    assert states.shape[0] == (steps[-1] - steps[0]) // every + 1

@@ -16,9 +16,10 @@ Cost per mutant, and how it is kept small:
   inside a test, as for constants or a package ``__init__`` run at collection, the tests whose
   file names the module), never skipped: an unexecuted mutant that survives is listed as a
   survivor like any other;
-- a mutant that survives the tests of its lines is run against the module's other tests before
-  it counts as a survivor (``confirmed``): a memoised result is attributed to the first test
-  that computed it only;
+- a mutant that survives the tests it ran is run against the module's other tests, those that
+  run a line of it and those whose file names it, before it counts as a survivor
+  (``confirmed``): a memoised result is attributed to the first test that computed it only,
+  and a test that only reads an import-time constant (a preset's field) runs no line of it;
 - torch, numpy and pytest are imported once; each mutant runs ``pytest.main`` in a forked
   child (one torch thread), so no interpreter start per mutant;
 - a mutant whose tests run 5x their measured time + 300 s (room for a loaded machine) is
@@ -44,6 +45,7 @@ import argparse
 import gc
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -112,11 +114,26 @@ def _tool(name: str) -> str:
 
 
 def _importers(tree: Path, module: str, tests) -> set:
-    """The tests whose file names ``module`` by its dotted path (``a.b.c`` or ``from a.b import``)."""
+    """The tests whose file names ``module``: ``a.b.c`` anywhere, or ``from a.b import (..., c, ...)``."""
     dotted = module[:-3].replace('/', '.').removesuffix('.__init__')
+    parent, _, stem = dotted.rpartition('.')
+    from_import = re.compile(rf'from\s+{re.escape(parent)}\s+import\s+(\([^)]*\)|[^\n]*)')
+
+    def names(text: str) -> bool:
+        return dotted in text or any(re.search(rf'\b{stem}\b', g) for g in from_import.findall(text))
     files = {t.split('::')[0] for t in tests}
-    named = {f for f in files if dotted in (tree / f).read_text()}
+    named = {f for f in files if names((tree / f).read_text())}
     return {t for t in tests if t.split('::')[0] in named}
+
+
+def _confirm_pool(cov: dict, module: str, tree: Path) -> list:
+    """Every test that runs a line of ``module`` or whose file names it, fastest first: a survivor
+    is run against these too (a memoised result is credited to its first test only; a test that
+    only reads an import-time constant, e.g. a preset's field, runs no line of the module)."""
+    dur = cov['durations']
+    tests = {t for ts in cov['lines'].get(module, {}).values() for t in ts if t}
+    tests |= _importers(tree, module, dur)
+    return sorted(tests, key=lambda t: (dur.get(t, 0.0), t))
 
 
 def _select(cov: dict, module: str, first: int, last: int, tree: Path):
@@ -231,8 +248,8 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                     rc = 'no mutation'
                 else:
                     rc = _run_tests(tree, tests, budget, log)
-                    if rc == 0 and mode == 'covered':
-                        more = [t for t in _select(cov, module, 0, -1, tree)[0] if t not in set(tests)]
+                    if rc == 0:
+                        more = [t for t in _confirm_pool(cov, module, tree) if t not in set(tests)]
                         if more:
                             tests, mode = tests + more, 'confirmed'
                             rc = _run_tests(tree, more, 5 * sum(cov['durations'].get(t, 1.0) for t in more)
