@@ -118,8 +118,12 @@ class AgentsNode(Node):
         # One raw subscription per robot topic for every hosted robot (decoded and filed once).
         self.odom_subs = [self.create_subscription(Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM,
                                                    raw=True) for rid in ids]
+        self.on_state = self.hosted._first.ticks is not None  # realtime: ticks come with the own states
         if mode == 'realtime':
-            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)
+            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)  # ROS clock
+            if self.on_state:  # the grace of ticks waiting for their neighbours' states (wall clock)
+                self.grace_timer = self.create_timer(self.hosted._first.ticks.grace_s, self._on_grace,
+                                                     clock=self._wall)
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -153,6 +157,8 @@ class AgentsNode(Node):
             self._note_drop(outcome, f'robot {topic_robot} at {stamp * 1e-9:.3f} s')
         if self.mode == 'lockstep':
             self._publish(self.hosted.lockstep_poll(time.monotonic()))
+        elif self.on_state:
+            self._publish(self.hosted.realtime_poll(now, time.monotonic()))
         if not self._announced_ready and self.hosted.ready:
             self._announced_ready = True
             self.get_logger().info(f'every hosted robot has heard all {len(self.hosted.ids)} robots: ready')
@@ -172,8 +178,12 @@ class AgentsNode(Node):
         self._publish(self.hosted.lockstep_poll(time.monotonic()))
         self._log_events()
 
+    def _on_grace(self) -> None:
+        self._publish(self.hosted.realtime_poll(self.get_clock().now().nanoseconds, time.monotonic()))
+
     def _on_tick(self) -> None:
-        self._publish(self.hosted.tick(self.get_clock().now().nanoseconds))
+        now = self.get_clock().now().nanoseconds
+        self._publish(self.hosted.watchdog(now) if self.on_state else self.hosted.tick(now))
         self._log_events()
 
     def _note_drop(self, reason: str, detail: str) -> None:

@@ -1,0 +1,82 @@
+"""Realtime ticks on the arrival of the robot's own state (``realtime_tick: state``, issue 19).
+
+The offline rollout (``core.rollout``, docs/DESIGN.md "Rollout semantics") computes the command
+of step s from the states of step s (its own, and its neighbours' at s - tau) and holds it over
+[s, s + 1). A free-running control timer computes from whatever own state is newest when it
+fires: up to one period old, and its command lands up to one period late. Ticking when the
+robot's own new state arrives keeps the command with the state it answers:
+
+* a tick opens when an own state arrives whose stamp is at least ``period - period / 4`` after
+  the stamp of the previous tick (the rate limit: at most ``control_rate`` ticks per second of
+  state time; a duplicate stamp, an older state or a faster odometry stream opens none);
+* it is computed once every robot heard within ``state_timeout`` (:meth:`Hearing.live_count`)
+  has its state of step ``max(s - tau, s0)`` filed (s0: the first own step), as a robot that
+  waits for its neighbours' broadcasts of the same instant, or ``grace`` wall seconds
+  (``period / 4``) after the own state arrived with what was heard by then (counted
+  ``late_ticks``): a neighbour whose state is late is taken at its newest state before, as a
+  timer would have;
+* the rows are those a timer tick would use at that moment (``Hearing.delayed``), the command is
+  stamped with the own state's stamp;
+* the control timer stays, as a watchdog: when the own state is older than ``state_timeout`` it
+  publishes the stop command (docs/DESIGN.md, "Saturation and stopping"), exactly as before.
+
+``realtime_tick: timer`` keeps the previous free-running timer (a robot whose odometry comes
+slower than its control rate, or a comparison).
+"""
+from __future__ import annotations
+
+from typing import Optional, Tuple
+
+__all__ = ['TICK_ON', 'TickOnState']
+
+#: What drives a realtime agent's ticks (parameter ``realtime_tick``).
+TICK_ON = ('state', 'timer')
+
+
+class TickOnState:
+    """One robot's pending realtime tick (see the module doc).
+
+    Args:
+        period_s: the control period ``1 / control_rate`` (seconds of state time).
+        grace_s: wall seconds a pending tick waits for the neighbours' states.
+    """
+
+    def __init__(self, period_s: float, grace_s: float):
+        self.period_ns = int(round(period_s * 1e9))
+        self.min_gap_ns = self.period_ns - self.period_ns // 4
+        self.grace_s = float(grace_s)
+        self.claimed_ns: Optional[int] = None   # own stamp of the newest tick opened
+        self.pending: Optional[Tuple[int, int]] = None  # (own step, own stamp) waiting for neighbours
+        self.since = 0.0                        # wall time it arrived
+        self.first_step: Optional[int] = None   # the first own step heard
+
+    def own_state(self, step: int, stamp_ns: int, wall: float) -> bool:
+        """An own state of ``step`` stamped ``stamp_ns`` was filed (not a duplicate) at ``wall``;
+        True when it opens a tick (a pending one not yet computed is superseded)."""
+        if self.first_step is None or step < self.first_step:
+            self.first_step = step
+        if self.claimed_ns is not None and stamp_ns < self.claimed_ns + self.min_gap_ns:
+            return False  # within the period of the last tick, or older
+        self.claimed_ns = int(stamp_ns)
+        self.pending = (int(step), int(stamp_ns))
+        self.since = wall
+        return True
+
+    @property
+    def deadline(self) -> float:
+        """Wall time the pending tick stops waiting (inf: none pending)."""
+        return self.since + self.grace_s if self.pending is not None else float('inf')
+
+    def due(self, hearing, tau: int, me: int, now_ns: Optional[int], wall: float) -> Optional[Tuple[int, int, bool]]:
+        """``(step, stamp, late)`` of the pending tick when it is due now (then no longer
+        pending), None while it waits; ``late``: computed at the deadline with states missing."""
+        if self.pending is None:
+            return None
+        step, stamp = self.pending
+        need = max(step - tau, self.first_step)
+        have = hearing.count_at(need) + (hearing.buffer.get(me, need) is None)  # (own lost at need: not awaited)
+        missing = have < hearing.live_count(now_ns)
+        if missing and wall < self.since + self.grace_s:
+            return None
+        self.pending = None
+        return step, stamp, missing
