@@ -50,7 +50,7 @@ def frame(s):
 def test_tick_opens_on_the_own_state_and_waits_for_the_neighbours_of_the_same_step():
     policy = SumPolicy()
     logic = logic_for(policy)
-    for r in range(4):  # the waiting phase: every robot heard once (a robot never heard is not awaited)
+    for r in range(4):  # the waiting phase: every robot heard once
         logic.receive(r, 0, frame(0)[r], 0, wall=0.0)
     assert logic.realtime_poll(0, 0.0).step == 0
     clock = 0
@@ -121,6 +121,24 @@ def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed
     # the row of robot 3 is its state of step 0 (newest at or before step 1)
     Y = logic.policy.calls[-1][0][0]
     assert any(np.array_equal(row, frame(0)[3]) for row in Y)
+
+
+def test_before_the_clock_runs_every_robot_is_awaited_and_a_repeated_own_state_completes_the_first_tick():
+    policy = SumPolicy()
+    logic = logic_for(policy)
+    logic.receive(0, 0, frame(0)[0], 0, wall=0.0)       # the simulator's initial state, clock not running
+    logic.receive(1, 0, frame(0)[1], 0, wall=0.0)
+    assert logic.realtime_poll(0, 0.0) is None          # robots 2 and 3 never heard: awaited all the same
+    first = logic.realtime_poll(0, 1.0)                 # the grace passed
+    assert first.step == 0 and first.neighbours == 1 and logic.counters['late_ticks'] == 1
+    for r in (2, 3):
+        logic.receive(r, 0, frame(0)[r], 0, wall=1.1)
+    assert logic.realtime_poll(0, 1.1) is None          # nothing pending
+    assert logic.receive(0, 0, frame(0)[0], 0, wall=1.5) == 'duplicate'  # re-published while waiting
+    again = logic.realtime_poll(0, 1.5)
+    assert again.step == 0 and again.stamp_ns == 0 and again.neighbours == 3
+    assert logic.receive(0, 0, frame(0)[0], 0, wall=2.0) == 'duplicate'
+    assert logic.realtime_poll(0, 9.0) is None          # complete: no third computation
 
 
 def test_a_neighbour_silent_longer_than_state_timeout_is_not_waited_for():

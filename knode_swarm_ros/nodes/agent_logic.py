@@ -240,6 +240,8 @@ class AgentLogic:
             lock = self._lock
             if robot == self.me and lock.answered == step and self.last_command is not None:
                 lock.resend = True
+            if robot == self.me and self.ticks is not None:
+                self.ticks.repeated(step, wall)
             return
         if robot == self.me:
             self.stamps[(robot, step)] = int(stamp_ns)

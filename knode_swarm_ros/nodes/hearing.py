@@ -139,11 +139,12 @@ class Hearing:
         return self._count.get(step, 0)
 
     def live_count(self, now_ns: Optional[int]) -> int:
-        """Robots heard within ``state_timeout`` at ``now_ns`` (every robot heard while the clock
-        is unknown): those a realtime tick uses, and waits for (:mod:`.realtime_tick`). Counted
-        once per clock value, then kept up to date as states are filed."""
+        """Robots heard within ``state_timeout`` at ``now_ns`` (every robot of the swarm while the
+        clock is unknown: before it runs nobody can be judged silent): those a realtime tick waits
+        for (:mod:`.realtime_tick`). Counted once per clock value, then kept up to date as states
+        are filed."""
         if now_ns is None or now_ns <= 0:
-            return len(self.newest_ns)
+            return len(self.ids)
         if self._live[0] != now_ns:
             cut = now_ns - self.timeout_ns
             self._live = (now_ns, sum(1 for ns in self.newest_ns.values() if ns >= cut))

@@ -149,6 +149,7 @@ class HostedAgents:
             if owner.ticks is not None and owner.ticks.pending is not None:
                 self._rt_active.add(robot)
                 self._rt_deadline = min(self._rt_deadline, owner.ticks.deadline)
+                self._rt_poll |= not accepted  # opened again by a repeated own state: may be due now
             if owner.waiting_since is not None:
                 self._active.add(robot)
                 self._deadline = min(self._deadline, owner.waiting_since + self.state_timeout)

@@ -14,7 +14,9 @@ robot's own new state arrives keeps the command with the state it answers:
   waits for its neighbours' broadcasts of the same instant, or ``grace`` wall seconds
   (``period / 4``) after the own state arrived with what was heard by then (counted
   ``late_ticks``): a neighbour whose state is late is taken at its newest state before, as a
-  timer would have;
+  timer would have; a repeated own state of that step (the simulator re-publishes the
+  initial state until every agent is ready) opens it again, so the first command is computed
+  once everything is heard;
 * the rows are those a timer tick would use at that moment (``Hearing.delayed``), the command is
   stamped with the own state's stamp;
 * the control timer stays, as a watchdog: when the own state is older than ``state_timeout`` it
@@ -49,6 +51,7 @@ class TickOnState:
         self.pending: Optional[Tuple[int, int]] = None  # (own step, own stamp) waiting for neighbours
         self.since = 0.0                        # wall time it arrived
         self.first_step: Optional[int] = None   # the first own step heard
+        self.incomplete: Optional[Tuple[int, int]] = None  # (step, stamp) of the last tick, if computed late
 
     def own_state(self, step: int, stamp_ns: int, wall: float) -> bool:
         """An own state of ``step`` stamped ``stamp_ns`` was filed (not a duplicate) at ``wall``;
@@ -60,6 +63,14 @@ class TickOnState:
         self.claimed_ns = int(stamp_ns)
         self.pending = (int(step), int(stamp_ns))
         self.since = wall
+        return True
+
+    def repeated(self, step: int, wall: float) -> bool:
+        """A duplicate own state of ``step`` arrived: True when it opens again a tick that was
+        computed with states missing."""
+        if self.incomplete is None or self.incomplete[0] != step or self.pending is not None:
+            return False
+        self.pending, self.since = self.incomplete, wall
         return True
 
     @property
@@ -79,4 +90,5 @@ class TickOnState:
         if missing and wall < self.since + self.grace_s:
             return None
         self.pending = None
+        self.incomplete = (step, stamp) if missing else None
         return step, stamp, missing
