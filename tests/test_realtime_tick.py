@@ -107,7 +107,7 @@ def test_ticks_are_limited_to_the_control_rate_with_a_quarter_period_of_stamp_ji
 def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed():
     logic = logic_for(SumPolicy())
     grace = logic.ticks.grace_s
-    assert grace == pytest.approx(DT / 4)
+    assert grace == pytest.approx(DT / 2)
     for r in range(4):
         logic.receive(r, stamp_ns(0, DT), frame(0)[r], 0, wall=0.0)
     assert logic.realtime_poll(0, 0.0).neighbours == 3

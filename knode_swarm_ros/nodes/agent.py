@@ -139,8 +139,10 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.on_state = self.logic.ticks is not None  # realtime: ticks come with the own state (realtime_tick.py)
         if mode == 'realtime':
             self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
-            if self.on_state:  # the grace of a tick waiting for its neighbours' states (wall clock)
+            if self.on_state:  # the grace of a tick waiting for its neighbours' states: armed by _realtime_poll
                 self.grace_timer = self.create_timer(self.logic.ticks.grace_s, self._on_grace, clock=self._wall)
+                self.grace_timer.cancel()
+                self._grace_armed = False
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -216,6 +218,13 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         cmd = self.logic.realtime_poll(now, time.monotonic())
         if cmd is not None:
             self._publish_command(cmd)
+        waiting = self.logic.ticks.pending is not None
+        if waiting != self._grace_armed:  # a one-shot timer: fires grace_s after a tick starts to wait
+            self._grace_armed = waiting
+            if waiting:
+                self.grace_timer.reset()
+            else:
+                self.grace_timer.cancel()
 
     def _on_grace(self) -> None:
         now = self.get_clock().now().nanoseconds

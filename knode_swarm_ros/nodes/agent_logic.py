@@ -198,7 +198,7 @@ class AgentLogic:
             self.events.append(self.period.describe())
         # Realtime ticks on the own state's arrival (None: on the control timer).
         period_s = 1.0 / config.control_rate if config.control_rate > 0 else self.dt
-        self.ticks = (TickOnState(period_s, period_s / 4) if config.mode == 'realtime' and config.tick_on == 'state'
+        self.ticks = (TickOnState(period_s, period_s / 2) if config.mode == 'realtime' and config.tick_on == 'state'
                       else None)
 
     # --- input ---------------------------------------------------------------------

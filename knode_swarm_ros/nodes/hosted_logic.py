@@ -238,6 +238,11 @@ class HostedAgents:
         self._rt_deadline = min((self.logics[rid].ticks.deadline for rid in self._rt_active), default=float('inf'))
         return self._run(due)
 
+    @property
+    def waiting_ticks(self) -> set:
+        """Realtime: the hosted robots whose own-state tick waits for states."""
+        return self._rt_active
+
     def watchdog(self, now_ns: Optional[int]) -> List[Tuple[int, Command]]:
         """The control timer with ticks on the own state: the stop command of every hosted robot
         whose own state is stale (:meth:`AgentLogic.watchdog`)."""

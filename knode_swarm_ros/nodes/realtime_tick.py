@@ -12,9 +12,12 @@ robot's own new state arrives keeps the command with the state it answers:
 * it is computed once every robot heard within ``state_timeout`` (:meth:`Hearing.live_count`)
   has its state of step ``max(s - tau, s0)`` filed (s0: the first own step), as a robot that
   waits for its neighbours' broadcasts of the same instant, or ``grace`` wall seconds
-  (``period / 4``) after the own state arrived with what was heard by then (counted
-  ``late_ticks``): a neighbour whose state is late is taken at its newest state before, as a
-  timer would have; a repeated own state of that step (the simulator re-publishes the
+  (``period / 2``) after the own state arrived with what was heard by then (counted
+  ``late_ticks``) with what was heard by then: a neighbour whose state is late is taken at its
+  newest state before, as a timer would have. (Half a period: a simulator applies a command
+  from its next step on, so one that lands within the period loses nothing; measured with ten
+  agent processes on two loaded cores, a quarter period let 5 % of the ticks go without the
+  last-published robots' states.) a repeated own state of that step (the simulator re-publishes the
   initial state until every agent is ready) opens it again, so the first command is computed
   once everything is heard;
 * the rows are those a timer tick would use at that moment (``Hearing.delayed``), the command is
