@@ -46,6 +46,10 @@ class _Node:
 
 
 def _entries(msg):
+    if isinstance(msg, bytes):  # the hosting process publishes serialized bytes
+        from rclpy import serialization
+        from diagnostic_msgs.msg import DiagnosticArray
+        msg = serialization.deserialize_message(msg, DiagnosticArray)
     return [(e.level, e.name, e.hardware_id, e.message, [(kv.key, kv.value) for kv in e.values]) for e in msg.status]
 
 
@@ -77,14 +81,33 @@ def test_hosted_robots_report_in_one_array_what_their_lone_agents_report():
         for rid, logic in lone.items():
             singles[rid].publish(logic.status(), now if wall > 10 else stamp_ns(2, policy.dt),
                                  logic.newest_ns.get(rid), logic.last_command.neighbours, wall)
-    assert len(node_h.sent) == 2 and all(len(msg.status) == 2 for msg in node_h.sent)
+    assert len(node_h.sent) == 2 and all(len(_entries(msg)) == 2 for msg in node_h.sent)
     assert len(node_l.sent) == 4
     for n, msg in enumerate(node_h.sent):
         assert _entries(msg) == [e for m in node_l.sent[2 * n:2 * n + 2] for e in _entries(m)]
-    first = node_h.sent[0]
-    assert [e.name for e in first.status] == ['knode_swarm agent robot_1', 'knode_swarm agent robot_3']
-    assert [e.level for e in first.status] == [bytes([OK])] * 2
-    ages = [{kv.key: kv.value for kv in e.values}['own_state_age_s'] for e in first.status]
+    first = _entries(node_h.sent[0])
+    assert [e[1] for e in first] == ['knode_swarm agent robot_1', 'knode_swarm agent robot_3']
+    assert [e[0] for e in first] == [bytes([OK])] * 2
+    ages = [dict(e[4])['own_state_age_s'] for e in first]
     assert ages == ['0.000', '0.010']  # robot 3's own state of step 1 is one step old
     assert levels == {1: WARN, 3: WARN}  # a second later both own states are stale
-    assert all('stale' in e.message for e in node_h.sent[1].status)
+    assert all('stale' in e[3] for e in _entries(node_h.sent[1]))
+
+
+def test_serialized_diagnostics_equal_rclpys():
+    from rclpy import serialization
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from knode_swarm_ros.nodes.agent_health import diagnostics_to_cdr
+    cases = [[], [(0, 'a', '', 'r', [])], [(2, 'knode_swarm agent robot_12', 'no own state heard yet', 'robot_12',
+                                             [('neighbours', '0'), ('heard', '3/4'), ('x' * 7, 'ünï ✓')])] * 3,
+             [(1, 'n' * k, 'm' * (k % 5), 'h' * (k % 3), [('k' * (k % 4), 'v' * k)] * (k % 3)) for k in range(9)]]
+    for stamp in (0, 1_500_000_007, 12_345_678_901_234):
+        for entries in cases:
+            msg = DiagnosticArray()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp // SEC, stamp % SEC
+            msg.status = [DiagnosticStatus(level=bytes([lv]), name=n, message=m, hardware_id=h,
+                                           values=[KeyValue(key=k, value=v) for k, v in vals])
+                          for lv, n, m, h, vals in entries]
+            ours = diagnostics_to_cdr(stamp, entries)
+            assert len(ours) == len(serialization.serialize_message(msg))
+            assert serialization.deserialize_message(ours, DiagnosticArray) == msg
