@@ -173,6 +173,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
         now = self.get_clock().now().nanoseconds
         if not self._through_link(robot, stamp, z, now):
+            if self.on_state:  # states the link released may complete a waiting tick
+                self._realtime_poll(now)
             return
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
