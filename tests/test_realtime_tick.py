@@ -234,3 +234,14 @@ def test_live_count_kept_up_to_date_equals_a_fresh_count():
         hearing.file(robot, stamp, z(robot), None)  # no age check: old states are filed too
         fresh = sum(1 for ns in hearing.newest_ns.values() if ns >= now - SEC // 2)
         assert hearing.live_count(now) == fresh
+
+
+def test_rate_study_counts_the_steps_a_recording_tracks_the_offline_rollout():
+    from training.rate_study import TRACK_TOL, tracked_steps
+    rng = np.random.default_rng(0)
+    pred = rng.normal(size=(50, 4, 4))
+    assert tracked_steps(pred + rng.normal(scale=1e-7, size=pred.shape), pred) == 50  # float32 rounding
+    late = pred.copy()
+    late[17:, 2, 0] += 10 * TRACK_TOL  # one robot moved by a command applied a step late
+    assert tracked_steps(late, pred) == 17
+    assert tracked_steps(late[:10], pred) == 10 and tracked_steps(pred, pred[:3]) == 3
