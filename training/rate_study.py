@@ -56,8 +56,8 @@ TRACK_TOL = 1e-4
 
 
 def tracked_steps(states: np.ndarray, pred: np.ndarray) -> int:
-    """Steps from the start over which the recording ``states [T, n, d]`` equals the offline
-    rollout ``pred [T', n, d]`` within :data:`TRACK_TOL` (the compared length when it never departs)."""
+    """Frames from the start in which the recording ``states [T, n, d]`` equals the offline
+    rollout ``pred [T', n, d]`` within :data:`TRACK_TOL` (all compared frames when it never departs)."""
     T = min(len(states), len(pred))
     off = np.nonzero(np.abs(states[:T] - pred[:T]).max(axis=(1, 2)) > TRACK_TOL)[0]
     return int(off[0]) if len(off) else T
@@ -120,7 +120,7 @@ def study(data_path: str, cases: Dict[float, str], out: str, starts: int, second
                 runs.append(r)
                 log(f"  realtime start {traj}: exit {r['exit_code']}, final avd {r.get('avd', float('nan')):.4f} "
                     f"(offline {offline[j]['avd']:.4f}), tracks the offline rollout for "
-                    f"{r.get('tracked_steps', '-')} of {steps} steps, {r['wall_s']} s")
+                    f"{r.get('tracked_steps', '-')} of {steps + 1} frames, {r['wall_s']} s")
                 write_json(os.path.join(out, "results.json"), results | {"partial": True})
             case["realtime"] = runs
             done = [r for r in runs if "avd" in r and r["exit_code"] == 0]
@@ -138,7 +138,7 @@ def study(data_path: str, cases: Dict[float, str], out: str, starts: int, second
 def write_summary(path: str, results: Dict[str, Any]) -> None:
     lines = [f"# Rate study: {len(results['test_trajectories'])} held-out starts, {results['seconds']:g} s each",
              "", "| rate | policy dt | offline final avd (mean ± sd) | realtime final avd (mean ± sd, runs) | "
-             "realtime / offline (mean of means) | per-start ratio min..max | steps tracking the offline rollout "
+             "realtime / offline (mean of means) | per-start ratio min..max | frames tracking the offline rollout "
              f"(within {TRACK_TOL:g}; median, min..max) |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for case in results["cases"].values():
         off = case["offline_avd"]
@@ -148,7 +148,7 @@ def write_summary(path: str, results: Dict[str, Any]) -> None:
         spread = (f"{case['realtime_over_offline']['min']:.2f}..{case['realtime_over_offline']['max']:.2f}"
                   if rt else "")
         tr = case.get("tracked_steps")
-        tracked = f"{tr['median']:g}, {tr['min']:g}..{tr['max']:g} of {case['steps']}" if tr else ""
+        tracked = f"{tr['median']:g}, {tr['min']:g}..{tr['max']:g} of {case['steps'] + 1}" if tr else ""
         lines.append(f"| {case['rate']:g} Hz | {case['policy_dt']:g} s | {off['mean']:.4f} ± {off['sd']:.4f} | "
                      f"{rts} | {ratio} | {spread} | {tracked} |")
     with open(path, "w") as fh:
