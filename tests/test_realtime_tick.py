@@ -104,6 +104,18 @@ def test_ticks_are_limited_to_the_control_rate_with_a_quarter_period_of_stamp_ji
         jitter.ticks.pending = None
 
 
+def test_faster_odometry_gives_control_rate_ticks_on_average():
+    from knode_swarm_ros.nodes.realtime_tick import TickOnState
+    ticks = TickOnState(0.05, 0.025)  # 20 Hz control
+    ms = 1_000_000
+    opened = [t for t in range(0, 1000, 20) if ticks.own_state(t // 50, t * ms, 0.0)]  # 50 Hz odometry, 1 s
+    assert len(opened) == 20 and opened[:4] == [0, 40, 100, 140]
+    jittered = TickOnState(0.05, 0.025)  # 20 Hz odometry with +-10 ms jitter: every state ticks
+    assert all(jittered.own_state(k, (50 * k + (10 if k % 2 else -10) + 10) * ms, 0.0) for k in range(40))
+    assert not jittered.own_state(39, 1980 * ms, 0.0)  # a second state 10 ms after the last tick
+    assert jittered.own_state(80, 4000 * ms, 0.0) and jittered.next_ns == 4050 * ms  # after a silence: a new grid
+
+
 def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed():
     logic = logic_for(SumPolicy())
     grace = logic.ticks.grace_s

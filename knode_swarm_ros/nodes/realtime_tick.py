@@ -6,9 +6,11 @@ of step s from the states of step s (its own, and its neighbours' at s - tau) an
 fires: up to one period old, and its command lands up to one period late. Ticking when the
 robot's own new state arrives keeps the command with the state it answers:
 
-* a tick opens when an own state arrives whose stamp is at least ``period - period / 4`` after
-  the stamp of the previous tick (the rate limit: at most ``control_rate`` ticks per second of
-  state time; a duplicate stamp, an older state or a faster odometry stream opens none);
+* a tick opens when an own state arrives whose stamp is at or past the next tick's time on a
+  grid of one period from the previous tick's, less a quarter period of jitter (the rate limit:
+  ``control_rate`` ticks per second of state time on average, whatever the odometry's rate; a
+  duplicate stamp or an older state opens none; after a silence the grid restarts at the
+  stamp that ends it);
 * it is computed once every robot heard within ``state_timeout`` (:meth:`Hearing.live_count`)
   has its state of step ``max(s - tau, s0)`` filed (s0: the first own step), as a robot that
   waits for its neighbours' broadcasts of the same instant, or ``grace`` wall seconds
@@ -48,9 +50,9 @@ class TickOnState:
 
     def __init__(self, period_s: float, grace_s: float):
         self.period_ns = int(round(period_s * 1e9))
-        self.min_gap_ns = self.period_ns - self.period_ns // 4
+        self.jitter_ns = self.period_ns // 4
         self.grace_s = float(grace_s)
-        self.claimed_ns: Optional[int] = None   # own stamp of the newest tick opened
+        self.next_ns: Optional[int] = None      # the next tick's time on the grid (own-state stamps)
         self.pending: Optional[Tuple[int, int]] = None  # (own step, own stamp) waiting for neighbours
         self.since = 0.0                        # wall time it arrived
         self.first_step: Optional[int] = None   # the first own step heard
@@ -61,9 +63,10 @@ class TickOnState:
         True when it opens a tick (a pending one not yet computed is superseded)."""
         if self.first_step is None or step < self.first_step:
             self.first_step = step
-        if self.claimed_ns is not None and stamp_ns < self.claimed_ns + self.min_gap_ns:
+        if self.next_ns is not None and stamp_ns < self.next_ns - self.jitter_ns:
             return False  # within the period of the last tick, or older
-        self.claimed_ns = int(stamp_ns)
+        on_grid = self.next_ns is not None and stamp_ns < self.next_ns + self.period_ns
+        self.next_ns = (self.next_ns if on_grid else int(stamp_ns)) + self.period_ns
         self.pending = (int(step), int(stamp_ns))
         self.since = wall
         return True
