@@ -135,7 +135,7 @@ def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed
     assert any(np.array_equal(row, frame(0)[3]) for row in Y)
 
 
-def test_before_the_clock_runs_every_robot_is_awaited_and_a_repeated_own_state_completes_the_first_tick():
+def test_before_the_clock_runs_every_robot_is_awaited_and_a_late_state_reopens_the_tick():
     policy = SumPolicy()
     logic = logic_for(policy)
     logic.receive(0, 0, frame(0)[0], 0, wall=0.0)       # the simulator's initial state, clock not running
@@ -143,14 +143,32 @@ def test_before_the_clock_runs_every_robot_is_awaited_and_a_repeated_own_state_c
     assert logic.realtime_poll(0, 0.0) is None          # robots 2 and 3 never heard: awaited all the same
     first = logic.realtime_poll(0, 1.0)                 # the grace passed
     assert first.step == 0 and first.neighbours == 1 and logic.counters['late_ticks'] == 1
-    for r in (2, 3):
-        logic.receive(r, 0, frame(0)[r], 0, wall=1.1)
-    assert logic.realtime_poll(0, 1.1) is None          # nothing pending
-    assert logic.receive(0, 0, frame(0)[0], 0, wall=1.5) == 'duplicate'  # re-published while waiting
-    again = logic.realtime_poll(0, 1.5)
+    logic.receive(2, 0, frame(0)[2], 0, wall=1.1)       # late: the tick opens again, still missing robot 3
+    assert logic.realtime_poll(0, 1.1) is None
+    logic.receive(3, 0, frame(0)[3], 0, wall=1.2)
+    again = logic.realtime_poll(0, 1.2)                 # complete now: computed again, same stamp
     assert again.step == 0 and again.stamp_ns == 0 and again.neighbours == 3
     assert logic.receive(0, 0, frame(0)[0], 0, wall=2.0) == 'duplicate'
     assert logic.realtime_poll(0, 9.0) is None          # complete: no third computation
+    assert logic.counters['commands'] == 2 and logic.counters['late_ticks'] == 1
+
+
+def test_a_repeated_own_state_reopens_a_tick_computed_with_states_missing():
+    logic = logic_for(SumPolicy())
+    logic.receive(0, 0, frame(0)[0], 0, wall=0.0)
+    assert logic.realtime_poll(0, 1.0).neighbours == 0   # alone, at the grace
+    assert logic.receive(0, 0, frame(0)[0], 0, wall=1.5) == 'duplicate'  # re-published while waiting
+    assert logic.realtime_poll(0, 1.5) is None and logic.realtime_poll(0, 2.5).neighbours == 0
+    assert logic.counters['late_ticks'] == 2
+    for r in (1, 2, 3):
+        logic.receive(r, 0, frame(0)[r], 0, wall=3.0)
+    assert logic.realtime_poll(0, 3.0).neighbours == 3
+    later = stamp_ns(1, DT)  # a newer tick: the old step is no longer re-opened
+    logic.receive(0, later, frame(1)[0], 0, wall=4.0)
+    assert logic.realtime_poll(0, 5.0).step == 1 and logic.ticks.incomplete is not None
+    for r in (1, 2):
+        logic.receive(r, stamp_ns(0, DT) + 1, frame(0)[r], 0, wall=5.1)  # step 0 again (duplicates)
+    assert logic.realtime_poll(0, 5.1) is None
 
 
 def test_a_neighbour_silent_longer_than_state_timeout_is_not_waited_for():
@@ -201,7 +219,7 @@ def test_hosted_robots_tick_on_their_own_states_like_lone_agents_in_one_call_per
         order = ids[:]
         rng.shuffle(order)
         for robot in order:
-            if (robot, s) == (1, 6):
+            if (robot, s) in ((1, 6), (2, 9)):
                 continue  # lost: both wait the grace, then use robot 1's state of step 5
             state = frame(s)[robot]
             for rid, logic in lone.items():
@@ -219,17 +237,30 @@ def test_hosted_robots_tick_on_their_own_states_like_lone_agents_in_one_call_per
                 got_lone[rid].append(cmd)
         for rid, cmd in host.realtime_poll(clock, wall=late):
             got_host[rid].append(cmd)
+        if s == 9:  # robot 2's state of step 9 comes after the grace: the ticks computed without it again
+            for rid, logic in lone.items():
+                logic.receive(2, ns, frame(s)[2], clock, wall=late)
+                cmd = logic.realtime_poll(clock, wall=late)
+                if cmd is not None:
+                    got_lone[rid].append(cmd)
+            host.receive(2, ns, frame(s)[2], clock, wall=late)
+            got = host.realtime_poll(clock, wall=late)
+            # robots 0 and 3 compute step 9 again; robot 2 (hosted), whose own state it is, for the first time
+            assert sorted(rid for rid, _ in got) == [0, 2, 3] and all(cmd.neighbours == 3 for _, cmd in got)
+            for rid, cmd in got:
+                got_host[rid].append(cmd)
         clock = ns
         if s == 0:  # robots heard for the first time in step 0 were not awaited yet
             calls0 = host.calls
     for rid in hosted:
-        assert [c.step for c in got_host[rid]] == list(range(12))
+        want = list(range(12)) if rid == 2 else list(range(10)) + [9, 10, 11]
+        assert [c.step for c in got_host[rid]] == want
         assert [(c.step, c.stamp_ns, c.neighbours) for c in got_host[rid]] == \
             [(c.step, c.stamp_ns, c.neighbours) for c in got_lone[rid]]
         assert np.allclose([c.value for c in got_host[rid]], [c.value for c in got_lone[rid]], rtol=1e-12, atol=1e-12)
         assert host.logics[rid].counters == lone[rid].counters
-        assert host.logics[rid].counters['late_ticks'] == 1
-    assert host.calls - calls0 == 11  # the hosted robots of a step fall due together: one call each
+        assert host.logics[rid].counters['late_ticks'] == (2 if rid != 2 else 1)
+    assert host.calls - calls0 == 12  # the hosted robots of a step fall due together: one call each (+ step 9's late)
 
 
 def test_live_count_kept_up_to_date_equals_a_fresh_count():

@@ -249,7 +249,10 @@ class AgentLogic:
             self._own_state(step, wall)
             if self.ticks is not None:
                 self.ticks.own_state(step, stamp_ns, wall)
-        elif robot in self._lock.gone and step >= self._current_step() - self.tau:
+            return
+        if self.ticks is not None:
+            self.ticks.heard(step, wall)  # a late neighbour's state may re-open a tick computed without it
+        if robot in self._lock.gone and step >= self._current_step() - self.tau:
             self._lock.gone.discard(robot)
             self.events.append(f'robot {robot} is heard again (step {step}): waiting for it again')
 

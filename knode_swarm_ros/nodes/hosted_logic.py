@@ -130,6 +130,7 @@ class HostedAgents:
         self._rt_active: set = set()   # realtime: robots with a pending own-state tick
         self._rt_poll = False          # realtime: a step's states may be complete
         self._rt_deadline = float('inf')  # realtime: the earliest grace deadline of a pending tick
+        self._rt_incomplete: set = set()  # realtime: robots whose last tick was computed with states missing
         self.calls = 0      # batched policy calls
         self.evaluated = 0  # matrices evaluated in them
 
@@ -161,6 +162,14 @@ class HostedAgents:
             self._most_left_out = max(len(logic.left_out) for logic in self.logics.values())
         if accepted and self.hearing.count_at(step) >= len(self.ids) - 1 - self._most_left_out:
             self._poll_all = True
+        if accepted and self._rt_incomplete:  # a late state: the ticks computed without it open again
+            for rid in list(self._rt_incomplete):
+                ticks = self.logics[rid].ticks
+                if rid != robot and ticks.heard(step, wall):
+                    self._rt_active.add(rid)
+                    self._rt_deadline = min(self._rt_deadline, ticks.deadline)
+                if ticks.incomplete is None or ticks.pending is not None:
+                    self._rt_incomplete.discard(rid)
         if accepted and self._rt_active and self.hearing.count_at(step) + 1 >= self.hearing.live_count(now_ns):
             self._rt_poll = True
         return outcome
@@ -234,6 +243,7 @@ class HostedAgents:
             item = self.logics[rid].realtime_next(now_ns, wall)
             if item is not None:
                 due[rid] = item
+        self._rt_incomplete.update(rid for rid in due if self.logics[rid].ticks.incomplete is not None)
         self._rt_active = {rid for rid in self._rt_active if self.logics[rid].ticks.pending is not None}
         self._rt_deadline = min((self.logics[rid].ticks.deadline for rid in self._rt_active), default=float('inf'))
         return self._run(due)

@@ -15,13 +15,14 @@ robot's own new state arrives keeps the command with the state it answers:
   has its state of step ``max(s - tau, s0)`` filed (s0: the first own step), as a robot that
   waits for its neighbours' broadcasts of the same instant, or ``grace`` wall seconds
   (``period / 2``) after the own state arrived with what was heard by then (counted
-  ``late_ticks``) with what was heard by then: a neighbour whose state is late is taken at its
-  newest state before, as a timer would have. (Half a period: a simulator applies a command
-  from its next step on, so one that lands within the period loses nothing; measured with ten
-  agent processes on two loaded cores, a quarter period let 5 % of the ticks go without the
-  last-published robots' states.) a repeated own state of that step (the simulator re-publishes the
-  initial state until every agent is ready) opens it again, so the first command is computed
-  once everything is heard;
+  ``late_ticks``): a neighbour whose state is late is taken at its newest state before, as a
+  timer would have. (Half a period: a simulator applies a command from its next step on, so one
+  that lands within the period loses nothing; measured with ten agent processes on two loaded
+  cores, a quarter period let 5 % of the ticks go without the last-published robots' states.)
+  Such a tick opens again when a state of the step it waited for arrives after all (or a
+  repeated own state of its step: the simulator re-publishes the initial state until every
+  agent is ready), until a newer tick opens: its command is computed again from what is heard
+  by then and sent again with the same stamp (a simulator takes the newest of a step);
 * the rows are those a timer tick would use at that moment (``Hearing.delayed``), the command is
   stamped with the own state's stamp;
 * the control timer stays, as a watchdog: when the own state is older than ``state_timeout`` it
@@ -56,7 +57,7 @@ class TickOnState:
         self.pending: Optional[Tuple[int, int]] = None  # (own step, own stamp) waiting for neighbours
         self.since = 0.0                        # wall time it arrived
         self.first_step: Optional[int] = None   # the first own step heard
-        self.incomplete: Optional[Tuple[int, int]] = None  # (step, stamp) of the last tick, if computed late
+        self.incomplete: Optional[Tuple[int, int, int]] = None  # (step, stamp, need) of the last tick if computed late
 
     def own_state(self, step: int, stamp_ns: int, wall: float) -> bool:
         """An own state of ``step`` stamped ``stamp_ns`` was filed (not a duplicate) at ``wall``;
@@ -67,6 +68,7 @@ class TickOnState:
             return False  # within the period of the last tick, or older
         on_grid = self.next_ns is not None and stamp_ns < self.next_ns + self.period_ns
         self.next_ns = (self.next_ns if on_grid else int(stamp_ns)) + self.period_ns
+        self.incomplete = None
         self.pending = (int(step), int(stamp_ns))
         self.since = wall
         return True
@@ -76,7 +78,15 @@ class TickOnState:
         computed with states missing."""
         if self.incomplete is None or self.incomplete[0] != step or self.pending is not None:
             return False
-        self.pending, self.since = self.incomplete, wall
+        self.pending, self.since = self.incomplete[:2], wall
+        return True
+
+    def heard(self, step: int, wall: float) -> bool:
+        """A neighbour's state of ``step`` was filed: True when it opens again a tick that was
+        computed without some state of that step."""
+        if self.incomplete is None or self.incomplete[2] != step or self.pending is not None:
+            return False
+        self.pending, self.since = self.incomplete[:2], wall
         return True
 
     @property
@@ -96,5 +106,5 @@ class TickOnState:
         if missing and wall < self.since + self.grace_s:
             return None
         self.pending = None
-        self.incomplete = (step, stamp) if missing else None
+        self.incomplete = (step, stamp, need) if missing else None
         return step, stamp, missing
