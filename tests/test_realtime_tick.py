@@ -288,3 +288,20 @@ def test_rate_study_counts_the_steps_a_recording_tracks_the_offline_rollout():
     late[17:, 2, 0] += 10 * TRACK_TOL  # one robot moved by a command applied a step late
     assert tracked_steps(late, pred) == 17
     assert tracked_steps(late[:10], pred) == 10 and tracked_steps(pred, pred[:3]) == 3
+
+
+def test_a_hosting_process_computes_every_waiting_robot_when_the_first_grace_passes():
+    policy = SumPolicy()
+    ids = [0, 1, 2, 3]
+    host = HostedAgents([0, 1, 2], AgentConfig(0, ids, 'realtime', control_rate=20.0), policy)
+    for r in ids:
+        host.receive(r, 0, frame(0)[r], 0, wall=0.0)
+    assert sorted(rid for rid, _ in host.realtime_poll(0, 0.0)) == [0, 1, 2]
+    ns, grace = stamp_ns(1, DT), host.logics[0].ticks.grace_s
+    for r, wall in ((0, 10.0), (1, 10.01), (2, 10.02)):  # robot 3's state of step 1 never comes
+        host.receive(r, ns, frame(1)[r], ns, wall=wall)
+        assert host.realtime_poll(ns, wall) == []
+    calls = host.calls
+    got = host.realtime_poll(ns, 10.0 + grace)  # robot 0's grace: robots 1 and 2 go with it
+    assert sorted(rid for rid, _ in got) == [0, 1, 2] and all(cmd.step == 1 for _, cmd in got)
+    assert host.calls == calls + 1 and all(host.logics[r].counters['late_ticks'] == 1 for r in (0, 1, 2))

@@ -393,9 +393,10 @@ class AgentLogic:
         None. Call after every ``receive`` and now and then (a timer) so that the grace passes."""
         return self._now(self.realtime_next(now_ns, wall))
 
-    def realtime_next(self, now_ns: Optional[int], wall: float) -> Optional[Request]:
-        """:meth:`realtime_poll` short of the policy call: None or the due tick's :class:`Request`."""
-        got = None if self.ticks is None else self.ticks.due(self.hearing, self.tau, self.me, now_ns, wall)
+    def realtime_next(self, now_ns: Optional[int], wall: float, force: bool = False) -> Optional[Request]:
+        """:meth:`realtime_poll` short of the policy call: None or the due tick's :class:`Request`
+        (``force``: due now, see :meth:`.realtime_tick.TickOnState.due`)."""
+        got = None if self.ticks is None else self.ticks.due(self.hearing, self.tau, self.me, now_ns, wall, force)
         if got is None:
             return None
         s, stamp, late = got

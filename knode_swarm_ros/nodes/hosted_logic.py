@@ -27,7 +27,8 @@ evaluated at the next poll without waiting for the rest.
 Batching in realtime (ticks on the own state, :mod:`.realtime_tick`): a hosted robot's pending
 tick is looked at when some step's states are all in (a step's count reaching the live robots)
 or a grace has passed, so the robots of a step that the simulator published together fall due
-together and go in one call.
+together and go in one call; when the first of them passes its grace, every waiting one is
+computed with it (they wait for the same states: one call, not one per arrival time).
 
 Also here: :func:`parse_ids`, the ``ids`` parameter (a list or a range) of the ``agents`` node.
 """
@@ -235,12 +236,13 @@ class HostedAgents:
     def realtime_poll(self, now_ns: Optional[int], wall: float) -> List[Tuple[int, Command]]:
         """``(robot, command)`` of every hosted robot whose own-state tick is due now, evaluated in
         one call (see the module doc); call after every ``receive`` and now and then (a timer)."""
-        if not self._rt_active or not (self._rt_poll or wall >= self._rt_deadline):
+        expired = wall >= self._rt_deadline
+        if not self._rt_active or not (self._rt_poll or expired):
             return []
         self._rt_poll = False
         due = {}
-        for rid in sorted(self._rt_active):
-            item = self.logics[rid].realtime_next(now_ns, wall)
+        for rid in sorted(self._rt_active):  # the first grace to pass is every waiting robot's: one call
+            item = self.logics[rid].realtime_next(now_ns, wall, force=expired)
             if item is not None:
                 due[rid] = item
         self._rt_incomplete.update(rid for rid in due if self.logics[rid].ticks.incomplete is not None)

@@ -94,16 +94,18 @@ class TickOnState:
         """Wall time the pending tick stops waiting (inf: none pending)."""
         return self.since + self.grace_s if self.pending is not None else float('inf')
 
-    def due(self, hearing, tau: int, me: int, now_ns: Optional[int], wall: float) -> Optional[Tuple[int, int, bool]]:
+    def due(self, hearing, tau: int, me: int, now_ns: Optional[int], wall: float,
+            force: bool = False) -> Optional[Tuple[int, int, bool]]:
         """``(step, stamp, late)`` of the pending tick when it is due now (then no longer
-        pending), None while it waits; ``late``: computed at the deadline with states missing."""
+        pending), None while it waits; ``late``: computed at the deadline with states missing.
+        ``force``: due now whatever is missing (a hosting process whose first grace passed)."""
         if self.pending is None:
             return None
         step, stamp = self.pending
         need = max(step - tau, self.first_step)
         have = hearing.count_at(need) + (hearing.buffer.get(me, need) is None)  # (own lost at need: not awaited)
         missing = have < hearing.live_count(now_ns)
-        if missing and wall < self.since + self.grace_s:
+        if missing and wall < self.since + self.grace_s and not force:
             return None
         self.pending = None
         self.incomplete = (step, stamp, need) if missing else None
