@@ -119,3 +119,17 @@ def test_the_count_of_robots_answered_or_lost_equals_a_scan():
         if sim.can_advance() and rng.random() < 0.8:
             sim.advance()
     assert sim.step > 50 and sim.counters.rejoined > 0 and sim.counters.lost_events > 0
+
+
+def test_distinct_commands_are_counted_once_whatever_is_re_sent_or_overtaken():
+    sim = SwarmSim('flock2d', np.zeros((3, 4)), 0.05, 'realtime')
+    ns = [int(round(s * 0.05 * 1e9)) for s in range(4)]
+    for s in range(3):
+        for r in range(3):
+            sim.offer(r, ns[s], [0.1, 0.0])
+        sim.offer(0, ns[s], [0.2, 0.0])          # robot 0 re-sends each step (a re-opened tick)
+        sim.advance()
+    sim.offer(1, ns[1], [0.3, 0.0])               # an old step again: stale, not new
+    sim.offer(2, ns[3], [0.3, 0.0])               # the current step
+    assert sim.counters.commanded == 3 * 3 + 1
+    assert sim.counters.accepted == 3 * 4 + 1 and sim.counters.stale == 1

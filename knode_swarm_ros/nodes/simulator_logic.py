@@ -125,6 +125,7 @@ class _Counters:
     future: int = 0
     rejoined: int = 0
     malformed: int = 0     # undecodable command messages (:meth:`SwarmSim.malformed`)
+    commanded: int = 0     # distinct (robot, step) commands received (a re-send counts once; recent 64 steps)
     zeroed: int = 0        # robot-steps stopped (lost in lockstep, command too old in realtime)
     lost_events: int = 0
 
@@ -182,6 +183,7 @@ class SwarmSim:
         self.latency: List[float] = []             # wall seconds, state published -> first command
         self._published: Dict[int, float] = {}     # step -> wall time it was published
         self._latency_seen = set()                 # (robot, step)
+        self._commanded: Dict[int, set] = {}       # step -> robots whose command for it arrived (recent steps)
         self.step_wall = 0.0                       # wall time self.step was first published
 
     # --- time ----------------------------------------------------------------------
@@ -217,6 +219,12 @@ class SwarmSim:
         if s > self.step:
             c.future += 1
             return 'future'
+        seen = self._commanded.setdefault(s, set())
+        if robot not in seen:
+            seen.add(robot)
+            c.commanded += 1
+            if len(self._commanded) > 64:
+                del self._commanded[min(self._commanded)]
         if (robot, s) not in self._latency_seen and s in self._published:
             self._latency_seen.add((robot, s))
             self.latency.append(wall - self._published[s])
