@@ -158,17 +158,23 @@ def test_a_repeated_own_state_reopens_a_tick_computed_with_states_missing():
     logic.receive(0, 0, frame(0)[0], 0, wall=0.0)
     assert logic.realtime_poll(0, 1.0).neighbours == 0   # alone, at the grace
     assert logic.receive(0, 0, frame(0)[0], 0, wall=1.5) == 'duplicate'  # re-published while waiting
-    assert logic.realtime_poll(0, 1.5) is None and logic.realtime_poll(0, 2.5).neighbours == 0
-    assert logic.counters['late_ticks'] == 2
-    for r in (1, 2, 3):
-        logic.receive(r, 0, frame(0)[r], 0, wall=3.0)
-    assert logic.realtime_poll(0, 3.0).neighbours == 3
-    later = stamp_ns(1, DT)  # a newer tick: the old step is no longer re-opened
-    logic.receive(0, later, frame(1)[0], 0, wall=4.0)
-    assert logic.realtime_poll(0, 5.0).step == 1 and logic.ticks.incomplete is not None
+    assert logic.realtime_poll(0, 1.5) is None
+    assert logic.realtime_poll(0, 9.5) is None  # a re-opened tick has no grace: computed only when complete
     for r in (1, 2):
-        logic.receive(r, stamp_ns(0, DT) + 1, frame(0)[r], 0, wall=5.1)  # step 0 again (duplicates)
-    assert logic.realtime_poll(0, 5.1) is None
+        logic.receive(r, 0, frame(0)[r], 0, wall=10.0)
+        assert logic.realtime_poll(0, 10.0) is None
+    logic.receive(3, 0, frame(0)[3], 0, wall=10.0)
+    assert logic.realtime_poll(0, 10.0).neighbours == 3 and logic.counters['late_ticks'] == 1
+    assert logic.receive(0, 0, frame(0)[0], 0, wall=11.0) == 'duplicate'  # complete: nothing to re-open
+    assert logic.realtime_poll(0, 11.0) is None and logic.counters['commands'] == 2
+    later = stamp_ns(1, DT)  # a newer tick computed late, re-opened by a late state once
+    for r in (0, 1, 2):
+        logic.receive(r, later, frame(1)[r], 0, wall=12.0)
+    assert logic.realtime_poll(0, 13.0).neighbours == 3 and logic.ticks.incomplete is not None
+    assert logic.receive(0, later, frame(1)[0], 0, wall=13.1) == 'duplicate'  # re-opens (once)
+    assert logic.ticks.pending is not None and logic.ticks.deadline == float('inf')
+    logic.receive(0, stamp_ns(2, DT), frame(2)[0], 0, wall=13.2)  # a newer own state supersedes it
+    assert logic.ticks.pending[0] == 2 and not logic.ticks.reopened
 
 
 def test_a_neighbour_silent_longer_than_state_timeout_is_not_waited_for():
