@@ -19,8 +19,8 @@ Figures, each against a baseline of the same run:
   launcher's default split), steps/s after startup, startup seconds, state-to-command latency
   p50/p99 and the PSS of all processes while running, hosted / lone as ratios; the lone layout
   runs only up to ``--lone-max`` robots (an agent process holds about 330 MB);
-* realtime: hosted at 20 Hz: missed commands (1 - commands the simulator received / robots x
-  state publications), p50/p99 latency, PSS;
+* realtime: hosted at 20 Hz: missed commands (1 - distinct (robot, step) commands the simulator
+  received / robots x state publications), p50/p99 latency, PSS;
 * multihost (root): three network namespaces on a bridge (:mod:`knode_swarm_ros.nodes.netns`),
   simulator and recorder in the first, hosting agent processes spread over the three, subnet
   discovery over UDP: lockstep steps/s and parity with core.rollout, realtime misses and latency,
@@ -186,6 +186,14 @@ def _fmt(x, spec='8.1f'):
     return format('-', '>' + spec.split('.')[0])
 
 
+def _commanded(counters: dict) -> int:
+    """Distinct (robot, step) commands the simulator received (a re-send of a step once); from a
+    simulator without that counter, every command received."""
+    if 'commanded' in counters:
+        return counters['commanded']
+    return sum(counters.get(key, 0) for key in ('accepted', 'stale', 'future', 'rejoined'))
+
+
 def _ratio(a, b):
     return a / b if isinstance(a, (int, float)) and isinstance(b, (int, float)) and b else None
 
@@ -244,7 +252,7 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
                         if mode == 'realtime':
                             c = rep.get('counters', {})
                             expected = rep.get('frames_published', 0) * n
-                            got = sum(c.get(key, 0) for key in ('accepted', 'stale', 'future', 'rejoined'))
+                            got = _commanded(c)
                             missed = 100.0 * max(0, expected - got) / expected if expected else None
                         out[tag] = {'report': rep, 'parity': parity, 'missed_pct': missed, 'rc': r['rc']}
                         print(f'{n:6d} {where:>6} {mode:>9} {_fmt(rep.get("steps_per_s"))} {_fmt(missed, "9.2f")} '
@@ -359,7 +367,7 @@ def main(argv=None) -> int:
             c = rep.get('counters', {})
             # one command per robot and control tick (20 Hz = every state publication) is expected
             expected = rep.get('frames_published', 0) * n
-            got = sum(c.get(key, 0) for key in ('accepted', 'stale', 'future', 'rejoined'))
+            got = _commanded(c)
             lat = rep.get('latency_ms') or {}
             missed = 100.0 * max(0, expected - got) / expected if expected else None
             results[f'realtime_{n}'] = {'report': rep, 'pss_mb': r['pss_mb'], 'missed_pct': missed}

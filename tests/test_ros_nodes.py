@@ -122,9 +122,10 @@ def test_agent_publishes_the_command_the_core_predicts(ros, flock_policy):
     assert ros.spin_until(lambda: (counters['non_finite'], counters['unknown_id'], counters['malformed']) == (1, 1, 1))
 
 
-def test_realtime_agent_ticks_on_sim_time_and_stops_when_its_state_is_stale(ros, flock_policy):
+@pytest.mark.parametrize('tick', ['state', 'timer'])
+def test_realtime_agent_ticks_on_sim_time_and_stops_when_its_state_is_stale(ros, flock_policy, tick):
     _agent(ros, id=0, robots=2, policy=str(flock_policy), mode='realtime', use_sim_time=True,
-           control_rate=10.0, state_timeout=0.3)
+           control_rate=10.0, state_timeout=0.3, realtime_tick=tick)
     io = ros.node('test_clock')
     clock = io.create_publisher(Clock, '/clock', qos.CLOCK)
     pubs = {r: io.create_publisher(Odometry, f'robot_{r}/odom', qos.ODOM) for r in range(2)}
@@ -134,7 +135,12 @@ def test_realtime_agent_ticks_on_sim_time_and_stops_when_its_state_is_stale(ros,
     Z = np.array([[0.0, 0.0, 1.0, 0.0], [0.8, 0.3, 0.0, 1.0]])
     t = [SEC]
 
-    def fresh():  # states at t, then the clock at t, advancing 0.1 s each call
+    calls = [0]
+
+    def fresh():  # states at t, then the clock at t, advancing 0.1 s every 4th call (spin_once runs one
+        calls[0] += 1  # callback: publishing 3 messages each time would outrun the agent until its states are too old)
+        if calls[0] % 4:
+            return
         t[0] += SEC // 10
         for r in range(2):
             pubs[r].publish(state_to_odom(r, t[0], Z[r], 'flock2d'))

@@ -136,8 +136,13 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         # raw=True: serialized bytes, decoded by conversions.odom_from_cdr (3x cheaper than rclpy's)
         self.odom_subs = [self.create_subscription(Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM,
                                                    raw=True) for rid in ids]
+        self.on_state = self.logic.ticks is not None  # realtime: ticks come with the own state (realtime_tick.py)
         if mode == 'realtime':
             self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
+            if self.on_state:  # the grace of a tick waiting for its neighbours' states: armed by _realtime_poll
+                self.grace_timer = self.create_timer(self.logic.ticks.grace_s, self._on_grace, clock=self._wall)
+                self.grace_timer.cancel()
+                self._grace_armed = False
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -168,6 +173,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
         now = self.get_clock().now().nanoseconds
         if not self._through_link(robot, stamp, z, now):
+            if self.on_state:  # states the link released may complete a waiting tick
+                self._realtime_poll(now)
             return
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
@@ -176,6 +183,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self._note_drop(outcome, detail)
         if self.mode == 'lockstep':
             self._lockstep_poll()
+        elif self.on_state:
+            self._realtime_poll(now)
         if not self._announced_ready and self.logic.ready:
             self._announced_ready = True
             self.get_logger().info(f'heard all {len(self.logic.ids)} robots: ready')
@@ -207,11 +216,30 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         for robot, stamp, z in self.link.due(now * 1e-9 if now > 0 else float('inf')):
             self.logic.receive(robot, stamp, z, now, time.monotonic())
 
+    def _realtime_poll(self, now: int) -> None:
+        cmd = self.logic.realtime_poll(now, time.monotonic())
+        if cmd is not None:
+            self._publish_command(cmd)
+        waiting = self.logic.ticks.pending is not None
+        if waiting != self._grace_armed:  # a one-shot timer: fires grace_s after a tick starts to wait
+            self._grace_armed = waiting
+            if waiting:
+                self.grace_timer.reset()
+            else:
+                self.grace_timer.cancel()
+
+    def _on_grace(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        self._release_link(now)
+        self._realtime_poll(now)
+
     def _on_tick(self) -> None:
         now = self.get_clock().now().nanoseconds
         self._release_link(now)
-        cmd = self.logic.tick(now)
-        if cmd is None:
+        cmd = self.logic.watchdog(now) if self.on_state else self.logic.tick(now)
+        if cmd is None and self.on_state and self.logic.me in self.logic.newest_ns:
+            pass  # own state fresh: its arrival ticks (the timer only stops a stale robot)
+        elif cmd is None:
             self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
         else:
             if cmd.stop:

@@ -1,6 +1,8 @@
 """Per-agent health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray), every status period.
 
-One DiagnosticStatus per agent, name ``knode_swarm agent robot_<id>``, hardware_id
+One DiagnosticStatus per robot (a lone agent publishes an array with its own; a process hosting
+several robots, :class:`HostedHealth`, one array with one status per hosted robot, the
+ROS-idiomatic form of an aggregated publisher), name ``knode_swarm agent robot_<id>``, hardware_id
 ``robot_<id>``, with the key values: neighbours (real rows of the last Y), heard (robots heard
 at least once) / robots, own state age (s, on the node's clock), command rate (Hz, since the
 previous report), saturated share (commands clipped at the command limit since the previous
@@ -13,11 +15,13 @@ half of the commands since the previous report, or when the agent is not active;
 """
 from __future__ import annotations
 
+import struct
 from typing import Any, Dict, List, Optional, Tuple
 
 from .agent_logic import DROP_REASONS
+from .conversions import _CDR_LE, _pad, _put_string
 
-__all__ = ['assess', 'AgentHealth', 'OK', 'WARN', 'ERROR']
+__all__ = ['assess', 'AgentHealth', 'HostedHealth', 'OK', 'WARN', 'ERROR']
 
 OK, WARN, ERROR = 0, 1, 2
 SATURATION_WARN = 0.5
@@ -63,6 +67,35 @@ def assess(status: Dict[str, Any], counts_before: Dict[str, int], seconds: float
     return level, '; '.join(problems) if problems else 'ok', values
 
 
+def _entry(robot_id: int, status: Dict[str, Any], before: Dict[str, int], seconds: float, now_ns: int,
+           own_ns: Optional[int], state_timeout: float, neighbours: int):
+    """(level, name, message, hardware_id, key values) of one robot's report (see :func:`assess`)."""
+    own_age = None if own_ns is None else max(0.0, (now_ns - own_ns) * 1e-9) if now_ns > 0 else 0.0
+    level, message, values = assess(status, before, seconds, own_age, state_timeout, neighbours)
+    return level, f'knode_swarm agent robot_{robot_id}', message, f'robot_{robot_id}', values
+
+
+def diagnostics_to_cdr(stamp_ns: int, entries) -> bytes:
+    """The serialized form of a DiagnosticArray stamped ``stamp_ns`` (frame_id empty) holding one
+    DiagnosticStatus per ``(level, name, message, hardware_id, [(key, value), ...])``, built
+    directly: a hosting process reports 100s of robots (rclpy's message objects cost 10x)."""
+    buf = bytearray(_CDR_LE)
+    buf.extend(struct.pack('<iII', stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000, 1))
+    buf.append(0)  # frame_id '' (length 1 above, its NUL here)
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(entries)))
+    for level, name, message, hardware_id, values in entries:
+        buf.append(level)
+        for text in (name, message, hardware_id):
+            _put_string(buf, text)
+        _pad(buf, 4)
+        buf.extend(struct.pack('<I', len(values)))
+        for key, value in values:
+            _put_string(buf, key)
+            _put_string(buf, value)
+    return bytes(buf)
+
+
 class AgentHealth:
     """Publishes :func:`assess` of an agent node on ``/diagnostics``."""
 
@@ -80,14 +113,43 @@ class AgentHealth:
         """Publish one report; returns its level."""
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         seconds = wall - self._last_wall if self._last_wall is not None else 0.0
-        own_age = None if own_ns is None else max(0.0, (now_ns - own_ns) * 1e-9) if now_ns > 0 else 0.0
-        level, message, values = assess(status, self._before, seconds, own_age, self.state_timeout, neighbours)
+        level, name, message, hardware_id, values = _entry(self.robot_id, status, self._before, seconds, now_ns,
+                                                           own_ns, self.state_timeout, neighbours)
         self._before, self._last_wall = dict(status['counters']), wall
         msg = DiagnosticArray()
         msg.header.stamp = self.node.get_clock().now().to_msg()
-        entry = DiagnosticStatus(level=bytes([level]), name=f'knode_swarm agent robot_{self.robot_id}',
-                                 message=message, hardware_id=f'robot_{self.robot_id}')
+        entry = DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=hardware_id)
         entry.values = [KeyValue(key=k, value=v) for k, v in values]
         msg.status = [entry]
         self.publisher.publish(msg)
         return level
+
+
+class HostedHealth:
+    """Publishes :func:`assess` of every robot of a hosting ``agents`` node on ``/diagnostics``:
+    one DiagnosticArray per report (serialized by :func:`diagnostics_to_cdr`) with one status per
+    hosted robot, each as its lone agent's."""
+
+    def __init__(self, node, robot_ids, state_timeout: float, qos_profile):
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.node = node
+        self.robot_ids = [int(r) for r in robot_ids]
+        self.state_timeout = float(state_timeout)
+        self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', qos_profile)
+        self._before: Dict[int, Dict[str, int]] = {r: {} for r in self.robot_ids}
+        self._last_wall: Optional[float] = None
+
+    def publish(self, reports: Dict[int, Tuple[Dict[str, Any], Optional[int], int]], now_ns: int,
+                wall: float) -> Dict[int, int]:
+        """Publish one array from ``{robot: (status, own stamp ns or None, neighbours)}``;
+        returns each robot's level."""
+        seconds = wall - self._last_wall if self._last_wall is not None else 0.0
+        entries = []
+        for rid in self.robot_ids:
+            status, own_ns, neighbours = reports[rid]
+            entries.append(_entry(rid, status, self._before[rid], seconds, now_ns, own_ns, self.state_timeout,
+                                  neighbours))
+            self._before[rid] = dict(status['counters'])
+        self._last_wall = wall
+        self.publisher.publish(diagnostics_to_cdr(self.node.get_clock().now().nanoseconds, entries))
+        return {rid: entry[0] for rid, entry in zip(self.robot_ids, entries)}

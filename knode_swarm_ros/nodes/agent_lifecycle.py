@@ -81,7 +81,7 @@ class ManagedAgentMixin:
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
-        for name in ('control_timer', 'status_timer'):
+        for name in ('control_timer', 'grace_timer', 'status_timer'):
             timer = getattr(self, name, None)
             if timer is not None:
                 self.destroy_timer(timer)

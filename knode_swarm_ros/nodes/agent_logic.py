@@ -19,7 +19,11 @@ core's neighbour-matrix builder and the policy file's controller:
   own state arrived is left out and counted as gone until it is heard again. A repeated own
   state of the step already answered re-sends the same command (the simulator's retransmission
   after a lost message).
-* ``realtime``: ``tick(now_ns)`` (the control timer) uses the newest own state and, for every
+* ``realtime``: with ``tick_on`` ``state`` (the default) the arrival of the own state of a new
+  control period opens a tick, computed (``realtime_poll``) once the live peers' states of
+  ``own step - tau`` are here or a grace has passed (:mod:`.realtime_tick`); the control timer is
+  then a watchdog (``watchdog``: stop commands only). With ``tick_on`` ``timer``,
+  ``tick(now_ns)`` (the control timer) computes. Either uses the own state and, for every
   peer heard within ``state_timeout``, its newest state at or before ``own step - tau``; an own
   state older than ``state_timeout`` gives a stop command, stamped ``now``: zero velocity, or
   for an acceleration-commanded robot a saturated brake to rest from the velocity it is
@@ -61,6 +65,7 @@ from .control_period import RATE_CHECKS, check_control_period
 from .agent_batch import Request, build_matrices, clean_commands
 from .hearing import DROP_REASONS, Counters, Hearing, Rows
 from .policy_call import evaluate_rows
+from .realtime_tick import TICK_ON, TickOnState
 
 __all__ = ['AgentConfig', 'AgentLogic', 'Command', 'Request', 'PolicyLike', 'DROP_REASONS', 'build_matrices',
            'clean_commands']
@@ -92,6 +97,7 @@ class AgentConfig:
     parity_batch: bool = True
     control_rate: float = 0.0   # Hz (realtime); 0: not known, no period check
     rate_check: str = 'warn'    # control period != policy dt: 'warn' once or 'refuse' (control_period.py)
+    tick_on: str = 'state'      # realtime: tick on the own state's arrival, or on the timer (realtime_tick.py)
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first bad parameter."""
@@ -111,6 +117,8 @@ class AgentConfig:
             raise ConfigError(f"parameter 'command_limit' must be >= 0 (0: the policy's), got {self.command_limit}")
         if not (np.isfinite(self.control_rate) and self.control_rate >= 0):
             raise ConfigError(f"parameter 'control_rate' must be > 0 Hz, got {self.control_rate}")
+        if self.tick_on not in TICK_ON:
+            raise ConfigError(f"parameter 'realtime_tick' = {self.tick_on!r} is not one of {', '.join(TICK_ON)}")
         if self.rate_check not in RATE_CHECKS:
             raise ConfigError(f"parameter 'rate_check' = {self.rate_check!r} is not one of {', '.join(RATE_CHECKS)}")
 
@@ -175,7 +183,7 @@ class AgentLogic:
         self.hearing = hearing if hearing is not None else own_hearing
         self.stamps: Dict[Tuple[int, int], int] = {}  # (robot, step) -> exact stamp (own robot only)
         self.counters = Counters(self.hearing.counters, {name: 0 for name in (
-            'commands', 'stop_commands', 'resent', 'gave_up', 'non_finite_command', 'clipped')})
+            'commands', 'stop_commands', 'resent', 'gave_up', 'non_finite_command', 'clipped', 'late_ticks')})
         self.last_command: Optional[Command] = None
         self.events: List[str] = []  # human-readable notes for the node to log, drained by it
         self._lock = _Lockstep()
@@ -188,6 +196,10 @@ class AgentLogic:
             if config.rate_check == 'refuse':
                 raise ConfigError(f"parameter 'control_rate' (rate_check refuse): {self.period.describe()}")
             self.events.append(self.period.describe())
+        # Realtime ticks on the own state's arrival (None: on the control timer).
+        period_s = 1.0 / config.control_rate if config.control_rate > 0 else self.dt
+        self.ticks = (TickOnState(period_s, period_s / 2) if config.mode == 'realtime' and config.tick_on == 'state'
+                      else None)
 
     # --- input ---------------------------------------------------------------------
     @property
@@ -228,12 +240,19 @@ class AgentLogic:
             lock = self._lock
             if robot == self.me and lock.answered == step and self.last_command is not None:
                 lock.resend = True
+            if robot == self.me and self.ticks is not None:
+                self.ticks.repeated(step, wall)
             return
         if robot == self.me:
             self.stamps[(robot, step)] = int(stamp_ns)
             self._forget_stamps(step)
             self._own_state(step, wall)
-        elif robot in self._lock.gone and step >= self._current_step() - self.tau:
+            if self.ticks is not None:
+                self.ticks.own_state(step, stamp_ns, wall)
+            return
+        if self.ticks is not None:
+            self.ticks.heard(step, wall)  # a late neighbour's state may re-open a tick computed without it
+        if robot in self._lock.gone and step >= self._current_step() - self.tau:
             self._lock.gone.discard(robot)
             self.events.append(f'robot {robot} is heard again (step {step}): waiting for it again')
 
@@ -344,8 +363,9 @@ class AgentLogic:
         """The command of a control tick at ``now_ns`` (None before the own state is heard)."""
         return self._now(self.tick_next(now_ns))
 
-    def tick_next(self, now_ns: Optional[int]):
-        """:meth:`tick` short of the policy call: None, a stop :class:`Command` or a :class:`Request`."""
+    def tick_next(self, now_ns: Optional[int], stop_only: bool = False):
+        """:meth:`tick` short of the policy call: None, a stop :class:`Command` or a :class:`Request`
+        (``stop_only``: :meth:`watchdog`'s, a fresh own state gives None)."""
         latest = self.buffer.latest(self.me)
         if latest is None:
             return None
@@ -357,9 +377,36 @@ class AgentLogic:
             self._last_tick_ns = int(now_ns)
         if clock_known and now_ns - own_ns > self.timeout_ns:
             return self._stop(int(now_ns), own, own_ns, period_ns)
+        if stop_only:
+            return None
         self._stop_v = None
         # every robot heard within the timeout (this one too: its own state is not stale), at s - tau
         return self._request(s, own_ns, own, self.hearing.delayed(s, now_ns))
+
+    def watchdog(self, now_ns: Optional[int]) -> Optional[Command]:
+        """The control timer when ticks come with the own state: the stop command of an own state
+        older than ``state_timeout`` (as :meth:`tick`), else None."""
+        return self.tick_next(now_ns, stop_only=True)
+
+    def realtime_poll(self, now_ns: Optional[int], wall: float) -> Optional[Command]:
+        """The command of the pending own-state tick once it is due (:mod:`.realtime_tick`), else
+        None. Call after every ``receive`` and now and then (a timer) so that the grace passes."""
+        return self._now(self.realtime_next(now_ns, wall))
+
+    def realtime_next(self, now_ns: Optional[int], wall: float, force: bool = False) -> Optional[Request]:
+        """:meth:`realtime_poll` short of the policy call: None or the due tick's :class:`Request`
+        (``force``: due now, see :meth:`.realtime_tick.TickOnState.due`)."""
+        got = None if self.ticks is None else self.ticks.due(self.hearing, self.tau, self.me, now_ns, wall, force)
+        if got is None:
+            return None
+        s, stamp, late = got
+        own = self.buffer.get(self.me, s)
+        if own is None:  # fell out of the buffer's horizon while waiting (never in practice): skip it
+            return None
+        if late:
+            self.counters['late_ticks'] += 1
+        self._stop_v = None
+        return self._request(s, stamp, own, self.hearing.delayed(s, now_ns))
 
     def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
         """The stop command of a stale own state (see the module doc)."""
@@ -449,4 +496,5 @@ class AgentLogic:
                 'answered': lock.answered, 'pending': lock.pending, 'gone': sorted(lock.gone),
                 'counters': dict(self.counters), 'policy_dt': self.dt,
                 'control_period': None if self.period is None else self.period.control_period,
+                'realtime_tick': None if self.config.mode != 'realtime' else self.config.tick_on,
                 'period_ratio': None if self.period is None else self.period.ratio}

@@ -17,6 +17,7 @@ from .common import MODES, robot_id_list
 from .control_period import RATE_CHECKS
 from .conversions import TWIST_FRAMES
 from .params import declare, declare_int_array
+from .realtime_tick import TICK_ON
 
 __all__ = ['AgentParams', 'declare_agent_parameters']
 
@@ -44,6 +45,7 @@ class AgentParams:
     threads: int
     status_period: float
     twist_frame: str
+    tick_on: str = 'state'
 
     @property
     def ids(self) -> List[int]:
@@ -54,7 +56,7 @@ class AgentParams:
         """Robot ``robot_id``'s :class:`AgentConfig`."""
         return AgentConfig(robot_id, self.ids, self.mode, self.state_timeout, self.future_tolerance,
                            self.command_limit, self.parity_batch, control_rate=self.control_rate,
-                           rate_check=self.rate_check)
+                           rate_check=self.rate_check, tick_on=self.tick_on)
 
     def policy_args(self):
         """The arguments of :func:`.agent.load_agent_policy` after the path."""
@@ -81,7 +83,7 @@ def declare_agent_parameters(node) -> AgentParams:
                   'installed, else TorchScript; torchscript; onnxruntime (no torch import)',
                   choices=('auto', 'torchscript', 'onnxruntime')),
         mode=d(node, 'mode', 'realtime', 'lockstep: answer each own state once every needed neighbour state is '
-               'here; realtime: a timer at control_rate', choices=MODES),
+               'here; realtime: at control_rate, on the own state (realtime_tick)', choices=MODES),
         control_rate=d(node, 'control_rate', 20.0, 'realtime control rate in Hz (on the ROS clock)',
                        float_range=(0.01, 1000.0)),
         state_timeout=d(node, 'state_timeout', 0.5, 'seconds after which a silent neighbour leaves the neighbour '
@@ -108,4 +110,7 @@ def declare_agent_parameters(node) -> AgentParams:
         twist_frame=d(node, 'twist_frame', 'body', "frame of the twist in the robots' Odometry: body (REP 105 "
                       'child frame, rotated into the world by the pose orientation) or world (a driver that '
                       'deviates from REP 105)', choices=TWIST_FRAMES),
+        tick_on=d(node, 'realtime_tick', 'state', "realtime: state: tick when the robot's own state of a new "
+                  'control period arrives (at most control_rate Hz; the timer then only stops a stale robot); '
+                  'timer: tick on a free-running timer at control_rate', choices=TICK_ON),
     )

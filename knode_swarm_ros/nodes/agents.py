@@ -31,6 +31,7 @@ from std_msgs.msg import String
 from . import qos
 from .agent import load_agent_policy
 from .agent_logic import DROP_REASONS
+from .agent_health import HostedHealth
 from .agent_params import declare_agent_parameters
 from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
 from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr, string_to_cdr
@@ -109,6 +110,7 @@ class AgentsNode(Node):
         self._log_throttle = Throttle()
         self._announced_ready = False
         self._warm_up(policy)
+        self.health = HostedHealth(self, hosted, p.state_timeout, qos.DIAGNOSTICS)  # /diagnostics, one array
 
         msg_type = command_msg_type(self.spec)
         self.cmd_pubs = {rid: self.create_publisher(msg_type, command_topic(rid, self.spec.command), qos.COMMAND)
@@ -118,8 +120,14 @@ class AgentsNode(Node):
         # One raw subscription per robot topic for every hosted robot (decoded and filed once).
         self.odom_subs = [self.create_subscription(Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM,
                                                    raw=True) for rid in ids]
+        self.on_state = self.hosted._first.ticks is not None  # realtime: ticks come with the own states
         if mode == 'realtime':
-            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)
+            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)  # ROS clock
+            if self.on_state:  # the grace of ticks waiting for their neighbours' states: armed by _realtime_poll
+                self.grace_timer = self.create_timer(self.hosted._first.ticks.grace_s, self._on_grace,
+                                                     clock=self._wall)
+                self.grace_timer.cancel()
+                self._grace_armed = False
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -153,6 +161,8 @@ class AgentsNode(Node):
             self._note_drop(outcome, f'robot {topic_robot} at {stamp * 1e-9:.3f} s')
         if self.mode == 'lockstep':
             self._publish(self.hosted.lockstep_poll(time.monotonic()))
+        elif self.on_state:
+            self._realtime_poll(now)
         if not self._announced_ready and self.hosted.ready:
             self._announced_ready = True
             self.get_logger().info(f'every hosted robot has heard all {len(self.hosted.ids)} robots: ready')
@@ -172,8 +182,22 @@ class AgentsNode(Node):
         self._publish(self.hosted.lockstep_poll(time.monotonic()))
         self._log_events()
 
+    def _realtime_poll(self, now: int) -> None:
+        self._publish(self.hosted.realtime_poll(now, time.monotonic()))
+        waiting = bool(self.hosted.waiting_ticks)
+        if waiting != self._grace_armed:  # a one-shot timer: fires grace_s after ticks start to wait
+            self._grace_armed = waiting
+            if waiting:
+                self.grace_timer.reset()
+            else:
+                self.grace_timer.cancel()
+
+    def _on_grace(self) -> None:
+        self._realtime_poll(self.get_clock().now().nanoseconds)
+
     def _on_tick(self) -> None:
-        self._publish(self.hosted.tick(self.get_clock().now().nanoseconds))
+        now = self.get_clock().now().nanoseconds
+        self._publish(self.hosted.watchdog(now) if self.on_state else self.hosted.tick(now))
         self._log_events()
 
     def _note_drop(self, reason: str, detail: str) -> None:
@@ -182,8 +206,13 @@ class AgentsNode(Node):
             self.get_logger().warning(f'dropped {self._drops[reason]} state(s) in all ({reason}; latest: {detail})')
 
     def _publish_status(self) -> None:
+        reports = {}
         for rid, logic in self.hosted.logics.items():
-            self.status_pubs[rid].publish(string_to_cdr(status_json(**logic.status())))  # bytes: no msg objects
+            status = logic.status()
+            self.status_pubs[rid].publish(string_to_cdr(status_json(**status)))  # bytes: no msg objects
+            last = logic.last_command
+            reports[rid] = (status, logic.newest_ns.get(rid), 0 if last is None else last.neighbours)
+        self.health.publish(reports, self.get_clock().now().nanoseconds, time.monotonic())
 
     def write_report(self) -> None:
         """Write every hosted robot's counters to the ``report`` file (if set)."""

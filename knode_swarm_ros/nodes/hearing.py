@@ -69,6 +69,7 @@ class Hearing:
         self._count: Dict[int, int] = {}        # step -> states filed at exactly that step
         self._exact: Dict[int, Rows] = {}       # step -> snapshot (dropped when that step gets a state)
         self._delayed: Dict[Tuple[int, Optional[int]], Rows] = {}  # (step, now) -> snapshot (any filing clears)
+        self._live = (None, 0)                  # (now_ns, robots heard within the timeout at now): live_count
 
     def key(self) -> Tuple:
         """What must agree for robots to share this hearing."""
@@ -109,8 +110,12 @@ class Hearing:
             c['duplicate'] += 1
             return 'duplicate', step
         c['accepted'] += 1
-        if stamp_ns > self.newest_ns.get(robot, -1):
+        before = self.newest_ns.get(robot, -1)
+        if stamp_ns > before:
             self.newest_ns[robot] = int(stamp_ns)
+            now_live, live = self._live
+            if now_live is not None and before < now_live - self.timeout_ns <= stamp_ns:
+                self._live = (now_live, live + 1)  # heard again (or first): live at that clock now
         self._count[step] = self._count.get(step, 0) + 1
         self._exact.pop(step, None)
         if self._delayed:
@@ -132,6 +137,18 @@ class Hearing:
     def count_at(self, step: int) -> int:
         """States filed at exactly ``step`` (never fewer than the buffer holds there)."""
         return self._count.get(step, 0)
+
+    def live_count(self, now_ns: Optional[int]) -> int:
+        """Robots heard within ``state_timeout`` at ``now_ns`` (every robot of the swarm while the
+        clock is unknown: before it runs nobody can be judged silent): those a realtime tick waits
+        for (:mod:`.realtime_tick`). Counted once per clock value, then kept up to date as states
+        are filed."""
+        if now_ns is None or now_ns <= 0:
+            return len(self.ids)
+        if self._live[0] != now_ns:
+            cut = now_ns - self.timeout_ns
+            self._live = (now_ns, sum(1 for ns in self.newest_ns.values() if ns >= cut))
+        return self._live[1]
 
     def exact(self, step: int) -> Rows:
         """Each robot's state filed at exactly ``step`` (robots without one left out)."""

@@ -24,6 +24,12 @@ until every hosted robot has one (the simulator publishes a step's states togeth
 are evaluated in one call; a request held ``hold_s`` wall seconds (an own state lost) is
 evaluated at the next poll without waiting for the rest.
 
+Batching in realtime (ticks on the own state, :mod:`.realtime_tick`): a hosted robot's pending
+tick is looked at when some step's states are all in (a step's count reaching the live robots)
+or a grace has passed, so the robots of a step that the simulator published together fall due
+together and go in one call; when the first of them passes its grace, every waiting one is
+computed with it (they wait for the same states: one call, not one per arrival time).
+
 Also here: :func:`parse_ids`, the ``ids`` parameter (a list or a range) of the ``agents`` node.
 """
 from __future__ import annotations
@@ -122,6 +128,10 @@ class HostedAgents:
         self._deadline = float('inf')  # wall time of the next timeout (a peer or a held request), or earlier
         self._full = False
         self._most_left_out = 0       # the largest number of robots any hosted robot left out
+        self._rt_active: set = set()   # realtime: robots with a pending own-state tick
+        self._rt_poll = False          # realtime: a step's states may be complete
+        self._rt_deadline = float('inf')  # realtime: the earliest grace deadline of a pending tick
+        self._rt_incomplete: set = set()  # realtime: robots whose last tick was computed with states missing
         self.calls = 0      # batched policy calls
         self.evaluated = 0  # matrices evaluated in them
 
@@ -138,6 +148,10 @@ class HostedAgents:
         if owner is not None:
             owner.react(robot, int(stamp_ns), step, accepted, wall)
             self._touched.add(robot)
+            if owner.ticks is not None and owner.ticks.pending is not None:
+                self._rt_active.add(robot)
+                self._rt_deadline = min(self._rt_deadline, owner.ticks.deadline)
+                self._rt_poll |= not accepted  # opened again by a repeated own state: may be due now
             if owner.waiting_since is not None:
                 self._active.add(robot)
                 self._deadline = min(self._deadline, owner.waiting_since + self.state_timeout)
@@ -149,6 +163,16 @@ class HostedAgents:
             self._most_left_out = max(len(logic.left_out) for logic in self.logics.values())
         if accepted and self.hearing.count_at(step) >= len(self.ids) - 1 - self._most_left_out:
             self._poll_all = True
+        if accepted and self._rt_incomplete:  # a late state: the ticks computed without it open again
+            for rid in list(self._rt_incomplete):
+                ticks = self.logics[rid].ticks
+                if rid != robot and ticks.heard(step, wall):
+                    self._rt_active.add(rid)
+                    self._rt_deadline = min(self._rt_deadline, ticks.deadline)
+                if ticks.incomplete is None or ticks.pending is not None:
+                    self._rt_incomplete.discard(rid)
+        if accepted and self._rt_active and self.hearing.count_at(step) + 1 >= self.hearing.live_count(now_ns):
+            self._rt_poll = True
         return outcome
 
     def malformed(self) -> str:
@@ -208,6 +232,34 @@ class HostedAgents:
     def tick(self, now_ns: Optional[int]) -> List[Tuple[int, Command]]:
         """``(robot, command)`` of every hosted robot at a control tick (none before its own state)."""
         return self._run({rid: logic.tick_next(now_ns) for rid, logic in self.logics.items()})
+
+    def realtime_poll(self, now_ns: Optional[int], wall: float) -> List[Tuple[int, Command]]:
+        """``(robot, command)`` of every hosted robot whose own-state tick is due now, evaluated in
+        one call (see the module doc); call after every ``receive`` and now and then (a timer)."""
+        expired = wall >= self._rt_deadline
+        if not self._rt_active or not (self._rt_poll or expired):
+            return []
+        self._rt_poll = False
+        due = {}
+        for rid in sorted(self._rt_active):  # the first grace to pass is every waiting robot's: one call
+            item = self.logics[rid].realtime_next(now_ns, wall, force=expired)
+            if item is not None:
+                due[rid] = item
+        self._rt_incomplete.update(rid for rid in due if self.logics[rid].ticks.incomplete is not None)
+        self._rt_active = {rid for rid in self._rt_active if self.logics[rid].ticks.pending is not None}
+        self._rt_deadline = min((self.logics[rid].ticks.deadline for rid in self._rt_active), default=float('inf'))
+        return self._run(due)
+
+    @property
+    def waiting_ticks(self) -> set:
+        """Realtime: the hosted robots whose own-state tick waits for states."""
+        return self._rt_active
+
+    def watchdog(self, now_ns: Optional[int]) -> List[Tuple[int, Command]]:
+        """The control timer with ticks on the own state: the stop command of every hosted robot
+        whose own state is stale (:meth:`AgentLogic.watchdog`)."""
+        out = [(rid, logic.watchdog(now_ns)) for rid, logic in self.logics.items()]
+        return [(rid, cmd) for rid, cmd in out if cmd is not None]
 
     def _run(self, items: Dict[int, object]) -> List[Tuple[int, Command]]:
         out: List[Tuple[int, Command]] = []

@@ -28,7 +28,7 @@ from . import qos
 from .common import (CLOCK_TOPIC, EXIT_OK, MARKERS_TOPIC, MODES,
                      RECORDER_PROGRESS_TOPIC, RECORDER_STATUS_TOPIC, SIMULATOR_STATUS_TOPIC, ConfigError,
                      agent_status_topic, command_topic, odom_topic, parse_status, status_json)
-from .conversions import command_msg_type, fields_to_cdr, msg_to_command, odom_to_cdr, time_msg
+from .conversions import CdrError, command_from_cdr, command_msg_type, fields_to_cdr, odom_to_cdr, time_msg
 from .executor import run_node
 from .markers import swarm_markers
 from .params import check_overrides, declare
@@ -144,8 +144,9 @@ class SimulatorNode(Node):
             self.cmd_subs = command_subscription(self, self.n, self._on_twist, qos.COMMAND)
         elif gt is None:
             ctype = command_msg_type(spec)
+            # raw=True: serialized bytes read by conversions.command_from_cdr (no message objects)
             self.cmd_subs = [self.create_subscription(ctype, command_topic(r, spec.command),
-                                                      partial(self._on_command, r), qos.COMMAND)
+                                                      partial(self._on_command, r), qos.COMMAND, raw=True)
                              for r in range(self.n)]
         if self.wait_for_agents:
             self.agent_subs = [self.create_subscription(String, agent_status_topic(r),
@@ -217,8 +218,12 @@ class SimulatorNode(Node):
             self.markers_pub.publish(swarm_markers(self.sim.states, self.spec, self.d_cr, self.sim.stamp_ns))
 
     # --- callbacks -----------------------------------------------------------------
-    def _on_command(self, robot: int, msg) -> None:
-        ns, u = msg_to_command(msg, self.spec)
+    def _on_command(self, robot: int, data: bytes) -> None:
+        try:
+            ns, u = command_from_cdr(data, self.spec)
+        except CdrError as exc:
+            self.life.on_malformed_command(robot, str(exc))
+            return
         self.life.on_command(robot, ns, u, time.monotonic())
 
     def _on_twist(self, robot: int, ns: int, u) -> None:

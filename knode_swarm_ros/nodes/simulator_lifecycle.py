@@ -133,6 +133,13 @@ class SimLifecycle:
             self._lockstep_advance()
         return outcome
 
+    def on_malformed_command(self, robot: int, why: str) -> str:
+        """Bytes on robot ``robot``'s command topic that are not a command: dropped and counted."""
+        outcome = self.sim.malformed()
+        self._throttled('cmd_malformed', f'dropped a command message on robot {robot}\'s topic that could not '
+                        f'be decoded ({why}); {self.sim.counters.malformed} in all', 'warn')
+        return outcome
+
     def on_agent_status(self, robot: int, status: Optional[Dict]) -> None:
         """An agent's parsed status (None: unreadable, ignored)."""
         if status is None:

@@ -36,7 +36,7 @@ __all__ = ['SwarmSim', 'initial_state', 'initial_state_from_file', 'make_ground_
            'ground_truth_variants', 'COMMAND_OUTCOMES']
 
 #: What :meth:`SwarmSim.offer` can answer (each has a counter).
-COMMAND_OUTCOMES = ('accepted', 'unknown_id', 'bad_size', 'non_finite', 'stale', 'future', 'rejoined')
+COMMAND_OUTCOMES = ('accepted', 'unknown_id', 'bad_size', 'non_finite', 'stale', 'future', 'rejoined', 'malformed')
 
 
 def ground_truth_variants(scenario: str) -> Tuple[str, ...]:
@@ -124,6 +124,8 @@ class _Counters:
     stale: int = 0
     future: int = 0
     rejoined: int = 0
+    malformed: int = 0     # undecodable command messages (:meth:`SwarmSim.malformed`)
+    commanded: int = 0     # distinct (robot, step) commands received (a re-send counts once; recent 64 steps)
     zeroed: int = 0        # robot-steps stopped (lost in lockstep, command too old in realtime)
     lost_events: int = 0
 
@@ -176,10 +178,12 @@ class SwarmSim:
         self.applied = np.zeros((self.n, m))       # what the last step applied
         self.answered = set()                      # lockstep: robots that answered self.step
         self.lost = set()                          # lockstep: not waited for
+        self._settled = 0                          # lockstep: robots answered or lost (|answered | lost|)
         self.counters = _Counters()
         self.latency: List[float] = []             # wall seconds, state published -> first command
         self._published: Dict[int, float] = {}     # step -> wall time it was published
         self._latency_seen = set()                 # (robot, step)
+        self._commanded: Dict[int, set] = {}       # step -> robots whose command for it arrived (recent steps)
         self.step_wall = 0.0                       # wall time self.step was first published
 
     # --- time ----------------------------------------------------------------------
@@ -215,6 +219,12 @@ class SwarmSim:
         if s > self.step:
             c.future += 1
             return 'future'
+        seen = self._commanded.setdefault(s, set())
+        if robot not in seen:
+            seen.add(robot)
+            c.commanded += 1
+            if len(self._commanded) > 64:
+                del self._commanded[min(self._commanded)]
         if (robot, s) not in self._latency_seen and s in self._published:
             self._latency_seen.add((robot, s))
             self.latency.append(wall - self._published[s])
@@ -227,10 +237,11 @@ class SwarmSim:
             self.commands[robot] = u
             self.command_step[robot] = s
             self.answered.add(robot)
-            if robot in self.lost:
+            if robot in self.lost:  # (settled already, as lost)
                 self.lost.discard(robot)
                 c.rejoined += 1
                 return 'rejoined'
+            self._settled += 1
             c.accepted += 1
             return 'accepted'
         if s < self.command_step[robot]:  # an older command overtaken by a newer one
@@ -241,14 +252,20 @@ class SwarmSim:
         c.accepted += 1
         return 'accepted'
 
+    def malformed(self) -> str:
+        """Count a command message that could not be decoded; returns ``malformed``."""
+        self.counters.malformed += 1
+        return 'malformed'
+
     # --- lockstep ------------------------------------------------------------------
     def waiting(self) -> List[int]:
         """Live robots that have not answered the current step."""
         return [r for r in range(self.n) if r not in self.answered and r not in self.lost]
 
     def can_advance(self) -> bool:
-        """Lockstep: every live robot answered (always true in ground-truth mode)."""
-        return self.ground_truth is not None or not self.waiting()
+        """Lockstep: every live robot answered (always true in ground-truth mode). Counted, not
+        scanned: this runs after every command."""
+        return self.ground_truth is not None or self._settled >= self.n
 
     def overdue(self, wall: float, timeout: float) -> List[int]:
         """Robots still waited for ``timeout`` wall seconds after the step was published."""
@@ -262,6 +279,7 @@ class SwarmSim:
             if r not in self.lost:
                 self.lost.add(r)
                 self.counters.lost_events += 1
+                self._settled += r not in self.answered
 
     # --- stepping ------------------------------------------------------------------
     def advance(self) -> np.ndarray:
@@ -286,6 +304,7 @@ class SwarmSim:
                 self.states = zoh_step(self.states, command, self.spec, self.dt)
         self.step += 1
         self.answered = set()
+        self._settled = len(self.lost)
         return self.states
 
     def stop_commands(self) -> np.ndarray:
