@@ -50,12 +50,16 @@ def test_a_state_exactly_state_timeout_old_or_future_tolerance_ahead_is_accepted
 
 
 def test_lockstep_gives_up_on_a_silent_peer_at_exactly_state_timeout():
-    logic = logic_for(SumPolicy(), state_timeout=0.5)
+    policy = SumPolicy()
+    logic = logic_for(policy, state_timeout=0.5)
+    for r in range(4):  # every robot heard at step 0; robot 3 then falls silent
+        logic.receive(r, 0, z(r), wall=0.0)
+    assert logic.lockstep_poll(0.0).step == 0
     for r in (0, 1, 2):
-        logic.receive(r, 0, z(r), wall=10.0)
+        logic.receive(r, stamp_ns(1, policy.dt), z(r), wall=10.0)
     assert logic.lockstep_poll(10.499) is None
     cmd = logic.lockstep_poll(10.5)  # 10.5 - 10.0 == 0.5 exactly in binary floating point
-    assert cmd is not None and cmd.step == 0 and cmd.neighbours == 2
+    assert cmd is not None and cmd.step == 1 and cmd.neighbours == 2
     assert logic.status()['gone'] == [3]
 
 
@@ -197,3 +201,19 @@ def test_a_braking_stop_ends_exactly_at_rest(vx, vy, period_ms, limit):
     for axis in finished:
         first = np.flatnonzero(np.abs(axis) < limit)[0]
         assert np.all(axis[first + 1:] == 0.0), axis
+
+
+def test_lockstep_never_gives_up_on_a_robot_not_yet_heard():
+    """Discovery under load: robot 3's topic is matched long after the others'. Until it is heard
+    once it is waited for, however long (the simulator's clock does not run before every agent
+    heard every robot), and the first command then uses it."""
+    policy = SumPolicy()
+    logic = logic_for(policy, state_timeout=0.5)
+    dt = policy.dt
+    for r in (0, 1, 2):
+        logic.receive(r, stamp_ns(0, dt), z(r), wall=0.0)
+    assert logic.lockstep_poll(0.6) is None and logic.lockstep_poll(30.0) is None
+    assert logic.counters['gave_up'] == 0 and logic.left_out == set()
+    logic.receive(3, stamp_ns(0, dt), z(3), wall=30.0)
+    cmd = logic.lockstep_poll(30.0)
+    assert cmd is not None and cmd.step == 0 and cmd.neighbours == 3

@@ -296,7 +296,7 @@ def test_simulator_lockstep_bookkeeping_lost_and_rejoined_robots():
     assert sim.waiting() == [1] and not sim.can_advance()
     # each counter is the number of times its outcome was returned, from 0
     assert sim.counters.__dict__ == dict(accepted=1, unknown_id=1, bad_size=1, non_finite=1, stale=1, future=1,
-                                         rejoined=0, zeroed=0, lost_events=0)
+                                         rejoined=0, malformed=0, commanded=1, zeroed=0, lost_events=0)
     sim.note_published(100.0)
     assert sim.overdue(101.0, 5.0) == [] and sim.overdue(106.0, 5.0) == [1]
     sim.declare_lost([1])

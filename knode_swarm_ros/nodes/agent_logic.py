@@ -342,7 +342,10 @@ class AgentLogic:
         missing = [] if len(rows) == len(self.ids) else [
             rid for rid in self.ids if rid not in rows.index and rid != self.me and rid not in lock.gone]
         if missing:
-            if not timed_out:
+            # A robot never heard is still being discovered, not silent: the simulator starts the
+            # clock only once every agent heard every robot, so giving up on it would only break
+            # the first steps (seen under load while discovery was still running).
+            if not timed_out or any(rid not in self.hearing.newest_ns for rid in missing):
                 return None
             for rid in missing:
                 lock.gone.add(rid)
