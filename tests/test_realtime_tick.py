@@ -311,3 +311,24 @@ def test_a_hosting_process_computes_every_waiting_robot_when_the_first_grace_pas
     got = host.realtime_poll(ns, 10.0 + grace)  # robot 0's grace: robots 1 and 2 go with it
     assert sorted(rid for rid, _ in got) == [0, 1, 2] and all(cmd.step == 1 for _, cmd in got)
     assert host.calls == calls + 1 and all(host.logics[r].counters['late_ticks'] == 1 for r in (0, 1, 2))
+
+
+def test_grace_arm_resets_only_when_a_wait_starts_and_cancels_when_it_ends():
+    from knode_swarm_ros.nodes.realtime_tick import GraceArm
+
+    class Timer:
+        def __init__(self):
+            self.calls = []
+
+        def reset(self):
+            self.calls.append('reset')
+
+        def cancel(self):
+            self.calls.append('cancel')
+
+    t = Timer()
+    arm = GraceArm(t)
+    for waiting in (False, True, True, True, False, False, True):
+        arm.set(waiting)
+    # cancelled at creation; a wait that goes on does not restart the grace
+    assert t.calls == ['cancel', 'reset', 'cancel', 'reset'] and arm.armed

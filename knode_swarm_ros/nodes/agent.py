@@ -34,6 +34,7 @@ from .conversions import (CdrError, command_msg_type, command_to_msg, odom_field
 from .executor import run_node
 from .reporting import LOG_EVERY_S as _LOG_EVERY_S, Throttle, throttled_log, write_json_report
 from .params import check_overrides, declare, node_name_from_args
+from .realtime_tick import GraceArm
 
 __all__ = ['AgentNode', 'main', 'load_agent_policy']
 
@@ -141,8 +142,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
             if self.on_state:  # the grace of a tick waiting for its neighbours' states: armed by _realtime_poll
                 self.grace_timer = self.create_timer(self.logic.ticks.grace_s, self._on_grace, clock=self._wall)
-                self.grace_timer.cancel()
-                self._grace_armed = False
+                self._grace = GraceArm(self.grace_timer)
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -220,13 +220,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         cmd = self.logic.realtime_poll(now, time.monotonic())
         if cmd is not None:
             self._publish_command(cmd)
-        waiting = self.logic.ticks.pending is not None
-        if waiting != self._grace_armed:  # a one-shot timer: fires grace_s after a tick starts to wait
-            self._grace_armed = waiting
-            if waiting:
-                self.grace_timer.reset()
-            else:
-                self.grace_timer.cancel()
+        self._grace.set(self.logic.ticks.pending is not None)
 
     def _on_grace(self) -> None:
         now = self.get_clock().now().nanoseconds

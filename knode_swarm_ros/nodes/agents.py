@@ -35,6 +35,7 @@ from .agent_health import HostedHealth
 from .agent_params import declare_agent_parameters
 from .common import ConfigError, agent_status_topic, command_topic, is_robot_frame, odom_topic, status_json
 from .conversions import CdrError, command_msg_type, command_to_cdr, odom_from_cdr, string_to_cdr
+from .realtime_tick import GraceArm
 from .executor import run_node
 from .hosted_logic import HostedAgents, format_ids, parse_ids
 from .params import check_overrides, declare
@@ -126,8 +127,7 @@ class AgentsNode(Node):
             if self.on_state:  # the grace of ticks waiting for their neighbours' states: armed by _realtime_poll
                 self.grace_timer = self.create_timer(self.hosted._first.ticks.grace_s, self._on_grace,
                                                      clock=self._wall)
-                self.grace_timer.cancel()
-                self._grace_armed = False
+                self._grace = GraceArm(self.grace_timer)
         else:
             self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
@@ -184,13 +184,7 @@ class AgentsNode(Node):
 
     def _realtime_poll(self, now: int) -> None:
         self._publish(self.hosted.realtime_poll(now, time.monotonic()))
-        waiting = bool(self.hosted.waiting_ticks)
-        if waiting != self._grace_armed:  # a one-shot timer: fires grace_s after ticks start to wait
-            self._grace_armed = waiting
-            if waiting:
-                self.grace_timer.reset()
-            else:
-                self.grace_timer.cancel()
+        self._grace.set(bool(self.hosted.waiting_ticks))
 
     def _on_grace(self) -> None:
         self._realtime_poll(self.get_clock().now().nanoseconds)

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from typing import Optional, Tuple
 
-__all__ = ['TICK_ON', 'TickOnState']
+__all__ = ['TICK_ON', 'TickOnState', 'GraceArm']
 
 #: What drives a realtime agent's ticks (parameter ``realtime_tick``).
 TICK_ON = ('state', 'timer')
@@ -116,3 +116,23 @@ class TickOnState:
         self.pending, self.reopened = None, False
         self.incomplete = (step, stamp, need) if missing else None
         return step, stamp, missing
+
+
+class GraceArm:
+    """The one-shot grace of ticks that wait for neighbours' states, on a wall timer of
+    ``grace_s`` (any object with ``reset()`` and ``cancel()``, e.g. an rclpy timer): armed when a
+    tick starts to wait, disarmed when none waits (one definition for the lone and hosted agents)."""
+
+    def __init__(self, timer) -> None:
+        self.timer = timer
+        self.armed = False
+        timer.cancel()
+
+    def set(self, waiting: bool) -> None:
+        """Arm (``waiting``) or disarm the timer; nothing when already so (a reset restarts it)."""
+        if waiting != self.armed:
+            self.armed = waiting
+            if waiting:
+                self.timer.reset()
+            else:
+                self.timer.cancel()
