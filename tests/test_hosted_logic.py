@@ -138,6 +138,7 @@ def test_ids_as_a_list_or_a_range():
     assert parse_ids('[1, 2,9]') == [1, 2, 9]
     assert parse_ids(4) == [4]
     assert format_ids([3, 4, 5]) == '3..5' and format_ids([1, 4]) == '[1, 4]'
+    assert format_ids([4, 3]) == '3..4' and format_ids([5]) == '[5]'  # a pair is a run; one id is not
     for bad, words in (('5..2', 'ends before'), ('a..b', 'neither'), ([1, 1], 'duplicates'), ([], 'no robot'),
                        ([-1, 2], 'negative'), (1.5, 'neither')):
         with pytest.raises(ConfigError, match=words) as info:

@@ -544,3 +544,9 @@ def test_simulator_latency_dedup_set_is_cleared_only_past_100000_samples():
     sim.note_published(300.0)
     sim.offer(0, stamp_ns(100, 0.01), u, wall=300.25)     # the 100 001st pair: counted, the set cleared
     assert len(sim.latency) == 100_001 and sim.latency[-1] == 0.25
+
+
+@pytest.mark.parametrize('shape', [(0, 4), (3, 5), (4,), (2, 3, 4)])
+def test_simulator_refuses_an_initial_state_of_the_wrong_shape(shape):
+    with pytest.raises(ConfigError, match=r'initial state must be \[n, 4\]'):
+        SwarmSim('flock2d', np.zeros(shape), 0.01)

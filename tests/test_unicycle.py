@@ -188,6 +188,7 @@ def test_swarm_sim_with_unicycles_records_the_world_velocity_and_brakes_a_silent
     assert np.allclose(sim.states[0], [0.25, 0.0, 1.0, 0.0])
     assert np.allclose(sim.states[1, 3], 0.0) and sim.states[1, 1] == pytest.approx(-0.05)  # 0.05 s x (0.4 + 0.3 + 0.2 + 0.1)
     assert sim.counters.zeroed == 5                                     # robot 1 never commanded: braked
+    assert np.array_equal(sim.stop_commands(), np.zeros((2, 2)))         # a base's stop: (v, omega) = 0 each
     from knode_swarm_ros.nodes.common import ConfigError
     with pytest.raises(ConfigError, match='robot_model'):
         SwarmSim('flock2d', z0, 0.05, ground_truth=object(), robot=UnicycleRobots(z0, UnicycleLimits()))
