@@ -127,28 +127,37 @@ def test_window_loss_gradient_matches_finite_differences():
             assert abs(fd - g.view(-1)[i].item()) <= 1e-6 * max(1.0, abs(fd)), (p.shape, i, fd, g.view(-1)[i].item())
 
 
-def test_multi_step_loss_recovers_a_known_linear_gain():
-    """A linear alignment + cohesion law generates the data; a student of the same form starts
-    elsewhere and is fitted on 20-step windows: it recovers the teacher's gains."""
+def _fit_linear_student(units, steps, consensus_weight=0.0):
+    """A linear alignment + cohesion teacher (gains 1.5, 0.5) generates 20-step windows; a student of
+    the same form, started at (0.2, 2.0), is fitted by LBFGS on the window loss (+ the weighted
+    consensus term). Returns the student."""
     teacher = LinearFlocking(1.5, 0.5)
     z0 = _swarm(np.random.default_rng(6), 4, 5, FLOCK)
     states = rollout(_numpy_fn(teacher), z0, 120, "flock2d", 3.0, 4, 0, 0.01)
     windows = Windows(states, tau=0)
     student = LinearFlocking(0.2, 2.0)
     opt = torch.optim.LBFGS(student.parameters(), lr=0.5, max_iter=40, line_search_fn="strong_wolfe")
-    starts = windows.fixed_starts(16, 20)
-    obs, _ = windows.gather(starts, 20)
+    obs, _ = windows.gather(windows.fixed_starts(16, 20), 20)
     obs = obs.double()
-    scales = window_scales(FLOCK, 0.01, 20, "command").double()
+    scales = window_scales(FLOCK, 0.01, 20, units).double()
 
     def closure():
         opt.zero_grad()
-        loss = window_loss(rollout_windows(student, FLOCK, {"d_cr": 3.0, "k": 4, "tau": 0}, 0.01, obs, None),
-                           obs, scales)
+        pred = rollout_windows(student, FLOCK, {"d_cr": 3.0, "k": 4, "tau": 0}, 0.01, obs, None)
+        loss = window_loss(pred, obs, scales)
+        if consensus_weight:
+            loss = loss + consensus_weight * consensus_loss(pred, obs, scales, FLOCK.velocity)
         loss.backward()
         return loss
-    for _ in range(5):
+    for _ in range(steps):
         opt.step(closure)
+    return student
+
+
+def test_multi_step_loss_recovers_a_known_linear_gain():
+    """A linear alignment + cohesion law generates the data; a student of the same form starts
+    elsewhere and is fitted on 20-step windows: it recovers the teacher's gains."""
+    student = _fit_linear_student("command", 5)
     # the data are float32 windows of a float64 rollout: the gains come back to that precision
     assert abs(student.a.item() - 1.5) < 1e-3 and abs(student.b.item() - 0.5) < 1e-3, (student.a, student.b)
 
@@ -334,24 +343,7 @@ def test_consensus_loss_ignores_a_common_drift_and_weighs_relative_velocities():
 def test_consensus_weighted_multi_step_loss_still_recovers_the_known_gains():
     """The linear alignment + cohesion teacher: the window loss plus 10 x the consensus term, minimised
     from elsewhere, returns the teacher's gains (the added term vanishes at the truth too)."""
-    teacher = LinearFlocking(1.5, 0.5)
-    z0 = _swarm(np.random.default_rng(6), 4, 5, FLOCK)
-    states = rollout(_numpy_fn(teacher), z0, 120, "flock2d", 3.0, 4, 0, 0.01)
-    windows = Windows(states, tau=0)
-    student = LinearFlocking(0.2, 2.0)
-    opt = torch.optim.LBFGS(student.parameters(), lr=0.5, max_iter=40, line_search_fn="strong_wolfe")
-    obs, _ = windows.gather(windows.fixed_starts(16, 20), 20)
-    obs = obs.double()
-    scales = window_scales(FLOCK, 0.01, 20, "state").double()
-
-    def closure():
-        opt.zero_grad()
-        pred = rollout_windows(student, FLOCK, {"d_cr": 3.0, "k": 4, "tau": 0}, 0.01, obs, None)
-        loss = window_loss(pred, obs, scales) + 10.0 * consensus_loss(pred, obs, scales, FLOCK.velocity)
-        loss.backward()
-        return loss
-    for _ in range(8):
-        opt.step(closure)
+    student = _fit_linear_student("state", 8, consensus_weight=10.0)
     assert abs(student.a.item() - 1.5) < 1e-3 and abs(student.b.item() - 0.5) < 1e-3, (student.a, student.b)
 
 
