@@ -34,7 +34,8 @@ from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.groundtruth.tanner import local_tanner_acceleration
-from knode_swarm_ros.core.network import neighbour_matrices
+from knode_swarm_ros.core.network import neighbour_index, neighbour_matrices
+from knode_swarm_ros.core.saturation import saturate
 
 from .scores import final_metrics
 
@@ -93,12 +94,9 @@ def closed_groups(states: np.ndarray, d_cr: float, k: int) -> int:
     from scipy.sparse.csgraph import connected_components
 
     n = len(states)
-    d = np.linalg.norm(states[:, None, :2] - states[None, :, :2], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    order = np.argsort(d, axis=1, kind="stable")[:, : k - 1]
-    rows = np.repeat(np.arange(n), order.shape[1])
-    keep = d[rows, order.ravel()] <= d_cr
-    graph = csr_matrix((np.ones(keep.sum()), (rows[keep], order.ravel()[keep])), shape=(n, n))
+    index, valid = neighbour_index(states, 2, d_cr, k)   # the rows of each robot's neighbour matrix
+    rows = np.repeat(np.arange(n), index.shape[1])[valid.ravel()]
+    graph = csr_matrix((np.ones(len(rows)), (rows, index[valid])), shape=(n, n))
     count, label = connected_components(graph, directed=True, connection="strong")
     leaves = np.ones(count, bool)
     src, dst = graph.nonzero()
@@ -133,7 +131,7 @@ def with_terms(fn: Controller, attraction: float, alignment: float, limit: Optio
 
     def wrapped(Y, m):
         u = np.asarray(fn(Y, m)) + attraction * tanner_attraction(Y, m) + alignment * tanner_alignment(Y, m)
-        return u if limit is None else np.clip(u, -limit, limit)
+        return saturate(u, limit)
     return wrapped
 
 
