@@ -96,35 +96,6 @@ def diagnostics_to_cdr(stamp_ns: int, entries) -> bytes:
     return bytes(buf)
 
 
-class AgentHealth:
-    """Publishes :func:`assess` of an agent node on ``/diagnostics``."""
-
-    def __init__(self, node, robot_id: int, state_timeout: float, qos_profile):
-        from diagnostic_msgs.msg import DiagnosticArray
-        self.node = node
-        self.robot_id = int(robot_id)
-        self.state_timeout = float(state_timeout)
-        self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', qos_profile)
-        self._before: Dict[str, int] = {}
-        self._last_wall: Optional[float] = None
-
-    def publish(self, status: Dict[str, Any], now_ns: int, own_ns: Optional[int], neighbours: int,
-                wall: float) -> int:
-        """Publish one report; returns its level."""
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-        seconds = wall - self._last_wall if self._last_wall is not None else 0.0
-        level, name, message, hardware_id, values = _entry(self.robot_id, status, self._before, seconds, now_ns,
-                                                           own_ns, self.state_timeout, neighbours)
-        self._before, self._last_wall = dict(status['counters']), wall
-        msg = DiagnosticArray()
-        msg.header.stamp = self.node.get_clock().now().to_msg()
-        entry = DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=hardware_id)
-        entry.values = [KeyValue(key=k, value=v) for k, v in values]
-        msg.status = [entry]
-        self.publisher.publish(msg)
-        return level
-
-
 class HostedHealth:
     """Publishes :func:`assess` of every robot of a hosting ``agents`` node on ``/diagnostics``:
     one DiagnosticArray per report (serialized by :func:`diagnostics_to_cdr`) with one status per
@@ -153,3 +124,17 @@ class HostedHealth:
         self._last_wall = wall
         self.publisher.publish(diagnostics_to_cdr(self.node.get_clock().now().nanoseconds, entries))
         return {rid: entry[0] for rid, entry in zip(self.robot_ids, entries)}
+
+
+class AgentHealth(HostedHealth):
+    """Publishes :func:`assess` of a lone agent node on ``/diagnostics``: a :class:`HostedHealth`
+    of its one robot (the same report and bytes)."""
+
+    def __init__(self, node, robot_id: int, state_timeout: float, qos_profile):
+        super().__init__(node, [robot_id], state_timeout, qos_profile)
+        self.robot_id = int(robot_id)
+
+    def publish(self, status: Dict[str, Any], now_ns: int, own_ns: Optional[int], neighbours: int,
+                wall: float) -> int:
+        """Publish one report; returns its level."""
+        return super().publish({self.robot_id: (status, own_ns, neighbours)}, now_ns, wall)[self.robot_id]
