@@ -231,10 +231,10 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         now = self.get_clock().now().nanoseconds
         self._release_link(now)
         cmd = self.logic.watchdog(now) if self.on_state else self.logic.tick(now)
-        if cmd is None and self.on_state and self.logic.me in self.logic.newest_ns:
-            pass  # own state fresh: its arrival ticks (the timer only stops a stale robot)
-        elif cmd is None:
-            self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
+        if cmd is None:
+            # (ticking on the own state, a fresh own state also gives None: its arrival ticks)
+            if not (self.on_state and self.logic.me in self.logic.newest_ns):
+                self._throttled('no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command')
         else:
             if cmd.stop:
                 own = self.logic.newest_ns.get(self.logic.me, 0)
