@@ -29,14 +29,9 @@ from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 
 from .records import write_json
+from .stats import describe
 
 LAST = 10   # frames averaged for the final metrics (as training.evaluate)
-
-
-def _stats(values: List[float]) -> Dict[str, float]:
-    v = np.asarray(values, dtype=np.float64)
-    return {"mean": float(v.mean()), "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-            "min": float(v.min()), "max": float(v.max()), "median": float(np.median(v)), "n": int(len(v))}
 
 
 def final_avd_amd(states: np.ndarray, scenario: str) -> Dict[str, float]:
@@ -104,9 +99,9 @@ def study(data_path: str, cases: Dict[float, str], out: str, starts: int, second
         offline = [final_avd_amd(p, policy.scenario) for p in pred]
         case: Dict[str, Any] = {"policy": os.path.abspath(policy_path), "policy_dt": policy.dt, "rate": rate,
                                 "steps": steps, "offline": offline,
-                                "offline_avd": _stats([o["avd"] for o in offline])}
+                                "offline_avd": describe([o["avd"] for o in offline])}
         log(f"{rate:g} Hz, policy dt {policy.dt:g} s: offline final avd {case['offline_avd']['mean']:.4f} "
-            f"(sd {case['offline_avd']['sd']:.4f})")
+            f"(sd {case['offline_avd']['std']:.4f})")
         if realtime:
             runs = []
             for j, traj in enumerate(test):
@@ -125,10 +120,10 @@ def study(data_path: str, cases: Dict[float, str], out: str, starts: int, second
             case["realtime"] = runs
             done = [r for r in runs if "avd" in r and r["exit_code"] == 0]
             if done:
-                case["realtime_avd"] = _stats([r["avd"] for r in done])
-                case["realtime_over_offline"] = _stats([r["ratio_to_offline"] for r in done])
+                case["realtime_avd"] = describe([r["avd"] for r in done])
+                case["realtime_over_offline"] = describe([r["ratio_to_offline"] for r in done])
                 case["mean_ratio"] = case["realtime_avd"]["mean"] / case["offline_avd"]["mean"]
-                case["tracked_steps"] = _stats([r["tracked_steps"] for r in done])
+                case["tracked_steps"] = describe([r["tracked_steps"] for r in done])
         results["cases"][f"{rate:g}"] = case
         write_json(os.path.join(out, "results.json"), results)
     write_summary(os.path.join(out, "summary.md"), results)
@@ -143,13 +138,13 @@ def write_summary(path: str, results: Dict[str, Any]) -> None:
     for case in results["cases"].values():
         off = case["offline_avd"]
         rt = case.get("realtime_avd")
-        rts = f"{rt['mean']:.4f} ± {rt['sd']:.4f} ({rt['n']})" if rt else "not run"
+        rts = f"{rt['mean']:.4f} ± {rt['std']:.4f} ({rt['count']})" if rt else "not run"
         ratio = f"{case['mean_ratio']:.2f}" if rt else ""
         spread = (f"{case['realtime_over_offline']['min']:.2f}..{case['realtime_over_offline']['max']:.2f}"
                   if rt else "")
         tr = case.get("tracked_steps")
         tracked = f"{tr['median']:g}, {tr['min']:g}..{tr['max']:g} of {case['steps'] + 1}" if tr else ""
-        lines.append(f"| {case['rate']:g} Hz | {case['policy_dt']:g} s | {off['mean']:.4f} ± {off['sd']:.4f} | "
+        lines.append(f"| {case['rate']:g} Hz | {case['policy_dt']:g} s | {off['mean']:.4f} ± {off['std']:.4f} | "
                      f"{rts} | {ratio} | {spread} | {tracked} |")
     with open(path, "w") as fh:
         fh.write("\n".join(lines) + "\n")
