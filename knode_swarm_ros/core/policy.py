@@ -60,7 +60,7 @@ class PolicyConfig:
         get_scenario(self.scenario)  # raises on an unknown name
         checks = {"k": self.k >= 1, "d_cr": self.d_cr > 0, "tau": self.tau >= 0,
                   "hidden": self.hidden >= 1, "frame": self.frame in ("relative", "absolute"),
-                  "network": self.network in ("mlp", "pairwise") and (self.network == "mlp" or self.frame == "relative"),
+                  "network": self.network in ("mlp", "pairwise", "kernel", "kernel_rank") and (self.network == "mlp" or self.frame == "relative"),
                   "command_limit": self.command_limit > 0, "collision_d0": self.collision_d0 > 0,
                   "wall_d0": self.wall_d0 > 0, "collision_a": self.collision_a >= 0,
                   "wall_a": self.wall_a >= 0}
@@ -103,8 +103,14 @@ class KNODEPolicy(nn.Module):
         self.wall_d0 = float(config.wall_d0)
         self.box = float(spec.box) if spec.box is not None else 0.0
         self.pairwise = config.network == "pairwise"
+        self.kernel = config.network in ("kernel", "kernel_rank")
+        self.kernel_rank = config.network == "kernel_rank"
         d, h, m = spec.state_dim, config.hidden, spec.command_dim
-        if self.pairwise:   # net: the own-state term u_self; pair: the per-neighbour term u_pair
+        if self.kernel:
+            self.net = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
+            n_k = 1 + ((config.k - 1) if self.kernel_rank else 0)
+            self.pair = nn.Sequential(nn.Linear(n_k, h), nn.Tanh(), nn.Linear(h, 2))
+        elif self.pairwise:   # net: the own-state term u_self; pair: the per-neighbour term u_pair
             self.net = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
             self.pair = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
         else:
@@ -127,12 +133,23 @@ class KNODEPolicy(nn.Module):
 
     def learnt(self, Y: Tensor, mask: Tensor) -> Tensor:
         """The network's command ``u_theta [B, m]``."""
-        if not self.pairwise:
+        if not self.pairwise and not self.kernel:
             return self.net(self.features(Y, mask))
         own = Y[:, 0, :]
         if not self.keep_own_position:
             own = torch.cat([torch.zeros_like(own[:, :self.position_dim]), own[:, self.position_dim:]], dim=1)
         rel = Y[:, 1:, :] - Y[:, :1, :]                                          # [B, k-1, d]
+        if self.kernel:
+            p = self.position_dim
+            rp, rv = rel[..., :p], rel[..., p:2 * p]
+            dist = torch.sqrt((rp * rp).sum(-1, keepdim=True) + 1e-9)           # [B, k-1, 1]
+            feats = dist
+            if self.kernel_rank:
+                eye = torch.eye(self.k - 1, dtype=Y.dtype, device=Y.device)
+                feats = torch.cat([dist, eye.unsqueeze(0).expand(Y.shape[0], -1, -1)], -1)
+            af = self.pair(feats)                                                # [B, k-1, 2]
+            per_pair = (af[..., :1] * rv + af[..., 1:] * rp / dist) * mask[:, 1:].to(Y.dtype).unsqueeze(-1)
+            return self.net(own) + per_pair.sum(dim=1)
         per_pair = self.pair(rel) * mask[:, 1:].to(Y.dtype).unsqueeze(-1)       # [B, k-1, m]
         return self.net(own) + per_pair.sum(dim=1)
 
