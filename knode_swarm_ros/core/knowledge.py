@@ -2,6 +2,13 @@
 
 Both terms derive from U(d) = (lambda / 2) / d^2 for d <= d0 (zero beyond), so the
 force on the robot is -grad U = lambda * r / d^4, with r pointing away from the obstacle.
+That force jumps from lambda / d0^3 to 0 at d0, and the collision term jumps again whenever the
+closest neighbour changes; inside the range of a flock's spacing a network cannot cancel such
+jumps, so every command carries them (docs/training.md, "A continuous avoidance potential").
+The ``continuous`` variants keep the paper's idea and its 1 / d^3 growth at contact but vanish
+continuously at d0: U(d) = (lambda / 2) (1/d - 1/d0)^2, force lambda (1/d - 1/d0) / d^2 along
+r / d, summed over every heard neighbour within d0 (a sum of pair potentials, so nothing jumps
+when neighbours change rank).
 Gains are lambda = a + phi^2 with a >= 0 fixed and phi trainable (the paper uses a > 0
 in 2D and a = 0 in 3D), which keeps every gain non-negative whatever phi learns.
 
@@ -13,7 +20,8 @@ import torch
 from torch import Tensor, nn
 
 __all__ = ["AvoidanceGain", "collision_avoidance", "wall_avoidance", "collision_potential",
-           "wall_potential", "MIN_DISTANCE"]
+           "wall_potential", "continuous_collision_avoidance", "continuous_wall_avoidance",
+           "continuous_collision_potential", "continuous_wall_potential", "MIN_DISTANCE"]
 
 # Distances are floored at ``min_distance`` (default MIN_DISTANCE) so that two robots on top
 # of each other get a huge but finite push (the policy's saturation bounds it), not inf/NaN:
@@ -99,6 +107,57 @@ def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_di
     push_down = torch.where(up <= d0, -gain / up ** 3, zero)
     push_up = torch.where(down <= d0, gain / down ** 3, zero)
     return push_down + push_up
+
+
+def continuous_collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
+                                   min_distance: float = 1e-3) -> Tensor:
+    """Sum over every active neighbour within d0 of lambda (1/d - 1/d0) / d^2 along r / d.
+
+    Args and floor as :func:`collision_avoidance` (closer than ``min_distance`` the magnitude
+    at ``min_distance``, along +x for r = 0). Returns ``[B, p]``, zero at and beyond d0.
+    """
+    if Y.shape[1] < 2:
+        return torch.zeros(Y.shape[0], position_dim, dtype=Y.dtype, device=Y.device)
+    offsets = Y[:, :1, :position_dim] - Y[:, 1:, :position_dim]                 # r = p_0 - p_j [B, k-1, p]
+    dist = torch.linalg.vector_norm(offsets, dim=-1, keepdim=True)               # [B, k-1, 1]
+    near = (dist < d0) & (mask[:, 1:] > 0).unsqueeze(-1)
+    d = dist.clamp(min=min_distance)
+    axis = torch.zeros_like(offsets)
+    axis[..., 0] = 1.0
+    apart = dist > 0
+    unit = torch.where(apart, offsets / torch.where(apart, dist, torch.ones_like(dist)), axis)
+    magnitude = gain * (1.0 / d - 1.0 / d0) / d ** 2
+    return torch.where(near, magnitude * unit, torch.zeros_like(offsets)).sum(dim=1)
+
+
+def continuous_wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float,
+                              min_distance: float = 1e-3) -> Tensor:
+    """Per face within d0, lambda (1/d - 1/d0) / d^2 along the inward normal ``[B, p]``
+    (floored distance outside the box, as :func:`wall_avoidance`)."""
+    up = (box - position).clamp(min=min_distance)
+    down = (position + box).clamp(min=min_distance)
+    zero = torch.zeros_like(position)
+    push_down = torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up ** 2, zero)
+    push_up = torch.where(down < d0, gain * (1.0 / down - 1.0 / d0) / down ** 2, zero)
+    return push_down + push_up
+
+
+def continuous_collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
+    """U ``[B]`` of :func:`continuous_collision_avoidance`."""
+    dist = torch.linalg.vector_norm(Y[:, :1, :position_dim] - Y[:, 1:, :position_dim], dim=-1)   # [B, k-1]
+    near = (dist < d0) & (mask[:, 1:] > 0)
+    d = dist.masked_fill(~near, 1.0)
+    return torch.where(near, 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2, torch.zeros_like(d)).sum(-1)
+
+
+def continuous_wall_potential(position: Tensor, box: float, gain: Tensor, d0: float) -> Tensor:
+    """U ``[B]`` of :func:`continuous_wall_avoidance` for robots inside the box."""
+    total = torch.zeros(position.shape[0], dtype=position.dtype, device=position.device)
+    for dist in (box - position, position + box):
+        near = dist < d0
+        d = dist.masked_fill(~near, 1.0)
+        total = total + torch.where(near, 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2, torch.zeros_like(d)).sum(-1)
+    return total
 
 
 def collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:

@@ -10,7 +10,9 @@
   over the heard neighbours, two one-hidden-layer networks of ``hidden`` units; the sum makes the
   command independent of the order of the rows and of how many are heard, as the observed laws
   (Tanner, boids) are.
-* knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains.
+* knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
+  ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
+  d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
 * saturation per axis at ``command_limit`` as the last operation (docs/DESIGN.md: real
   actuators saturate, and a zero-order hold of an unbounded repulsion is unstable).
 
@@ -24,7 +26,8 @@ from typing import Any, Dict, Optional
 import torch
 from torch import Tensor, nn
 
-from .knowledge import AvoidanceGain, collision_avoidance, wall_avoidance
+from .knowledge import (AvoidanceGain, collision_avoidance, continuous_collision_avoidance,
+                        continuous_wall_avoidance, wall_avoidance)
 from .scenarios import get_scenario
 
 __all__ = ["PolicyConfig", "KNODEPolicy", "DEFAULTS"]
@@ -47,6 +50,7 @@ class PolicyConfig:
     network: str = "mlp"
     command_limit: float = 10.0
     collision: bool = True
+    potential: str = "paper"
     collision_a: float = 0.0
     collision_phi: float = 1.0
     collision_d0: float = 1.0
@@ -60,6 +64,7 @@ class PolicyConfig:
         get_scenario(self.scenario)  # raises on an unknown name
         checks = {"k": self.k >= 1, "d_cr": self.d_cr > 0, "tau": self.tau >= 0,
                   "hidden": self.hidden >= 1, "frame": self.frame in ("relative", "absolute"),
+                  "potential": self.potential in ("paper", "continuous"),
                   "network": self.network in ("mlp", "pairwise", "kernel", "kernel_rank") and (self.network == "mlp" or self.frame == "relative"),
                   "command_limit": self.command_limit > 0, "collision_d0": self.collision_d0 > 0,
                   "wall_d0": self.wall_d0 > 0, "collision_a": self.collision_a >= 0,
@@ -101,6 +106,7 @@ class KNODEPolicy(nn.Module):
         self.collision_d0 = float(config.collision_d0)
         self.use_wall = bool(config.wall) and spec.box is not None
         self.wall_d0 = float(config.wall_d0)
+        self.continuous = config.potential == "continuous"
         self.box = float(spec.box) if spec.box is not None else 0.0
         self.pairwise = config.network == "pairwise"
         self.kernel = config.network in ("kernel", "kernel_rank")
@@ -157,9 +163,17 @@ class KNODEPolicy(nn.Module):
         """Sum of the knowledge terms ``[B, m]``."""
         out = torch.zeros(Y.shape[0], self.command_dim, dtype=Y.dtype, device=Y.device)
         if self.use_collision:
-            out = out + collision_avoidance(Y, mask, self.position_dim, self.collision_gain(), self.collision_d0)
+            if self.continuous:
+                out = out + continuous_collision_avoidance(Y, mask, self.position_dim, self.collision_gain(),
+                                                           self.collision_d0)
+            else:
+                out = out + collision_avoidance(Y, mask, self.position_dim, self.collision_gain(), self.collision_d0)
         if self.use_wall:
-            out = out + wall_avoidance(Y[:, 0, :self.position_dim], self.box, self.wall_gain(), self.wall_d0)
+            own = Y[:, 0, :self.position_dim]
+            if self.continuous:
+                out = out + continuous_wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
+            else:
+                out = out + wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
         return out
 
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
