@@ -34,7 +34,7 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
                   "batch_windows": 16, "units": "command", "checkpoint": 0, "velocity_weight": 1.0,
                   "consensus_weight": 0.0},
     "selection": {"every": 5, "trajectories": 4, "steps": None},
-    "augment": {"rotate": False, "velocity_boost": 0.0, "permute_neighbours": False},
+    "augment": {"rotate": False, "velocity_boost": 0.0},
 }
 NOISE_VARIANCE = {"flock2d": 0.001, "boids3d": 0.01}
 SOLVERS = ("zoh", "rk4", "adjoint")
@@ -141,8 +141,6 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
            "must be a number >= 0")
     _check(a["velocity_boost"] == 0 or spec.command == "acceleration", "augment.velocity_boost",
            a["velocity_boost"], "Galilean boosts are a symmetry of flock2d only")
-    _check(isinstance(a["permute_neighbours"], bool), "augment.permute_neighbours", a["permute_neighbours"],
-           "must be true or false")
     _check(isinstance(s["every"], int) and s["every"] >= 0, "selection.every", s["every"], "must be an integer >= 0 (0 = off)")
     _check(pos_int(s["trajectories"]), "selection.trajectories", s["trajectories"], "must be an integer >= 1")
     _check(s["steps"] is None or pos_int(s["steps"]), "selection.steps", s["steps"], "must be null or an integer >= 1")

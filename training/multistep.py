@@ -26,7 +26,6 @@ from torch import Tensor
 
 from knode_swarm_ros.core.rollout import rollout_torch
 from knode_swarm_ros.core.scenarios import Scenario
-from .samples import ShuffledRows
 
 __all__ = ["Windows", "horizon_at", "window_scales", "window_loss", "consensus_loss", "augment_windows",
            "rollout_windows"]
@@ -256,8 +255,6 @@ class MultiStepObjective:
         ac = self.cfg["augment"]
         if g is not None and (ac["rotate"] or ac["velocity_boost"] > 0):
             obs, history = augment_windows(obs, history, self.dt, ac["rotate"], ac["velocity_boost"], g)
-        if g is not None and ac["permute_neighbours"]:
-            policy = ShuffledRows(policy, g)
         pred = rollout_windows(policy, self.spec, self.cfg["policy"], self.dt, obs, history, self.mc["checkpoint"])
         tc = self.cfg["training"]
         scales = window_scales(self.spec, self.dt, obs.shape[1] - 1, self.mc["units"], tc["heading_weight"],

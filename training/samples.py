@@ -86,35 +86,6 @@ def make_samples(states: np.ndarray, spec: Scenario, d_cr: float, k: int, tau: i
     return Samples(f32(Ys), f32(ms), f32(target), f32(own))
 
 
-def permute_neighbours(Y: Tensor, mask: Tensor, g: Optional[torch.Generator]):
-    """One random order per sample of the neighbour rows 1..k-1 of ``Y [B, k, d]`` and ``mask [B, k]``.
-
-    The observed laws (Tanner, boids) sum over neighbours, so the order of the rows (nearest first)
-    carries no information of its own; without this the network weighs neighbours by rank (measured:
-    alignment gains 3.2 on the nearest, 0.35 on the next two), and its command jumps whenever two
-    neighbours swap rank, a jitter the flocked swarm never loses (docs/training.md).
-    """
-    B, k = mask.shape
-    if k <= 2:
-        return Y, mask
-    order = torch.argsort(torch.rand(B, k - 1, generator=g), dim=1) + 1              # [B, k-1]
-    order = torch.cat([torch.zeros(B, 1, dtype=order.dtype), order], dim=1)         # row 0 stays
-    Y = torch.gather(Y, 1, order[:, :, None].expand(-1, -1, Y.shape[-1]))
-    return Y, torch.gather(mask, 1, order)
-
-
-class ShuffledRows(torch.nn.Module):
-    """``policy`` evaluated on neighbour matrices whose rows 1..k-1 are put in a random order
-    (:func:`permute_neighbours`) on every call: the same symmetry inside trajectory training."""
-
-    def __init__(self, policy, g: Optional[torch.Generator]):
-        super().__init__()
-        self.policy, self.g = policy, g
-
-    def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
-        return self.policy(*permute_neighbours(Y, mask, self.g))
-
-
 def augment_batch(Y: Tensor, mask: Tensor, own: Tensor, target: Tensor, spec: Scenario, dt: float,
                   rotate: bool, boost_std: float, g: Optional[torch.Generator]):
     """Apply symmetries of the flock2d ground truth to a batch of samples.

@@ -25,7 +25,7 @@ from knode_swarm_ros.core.trajectory import atomic_write
 from .config import ConfigError, build_policy
 from .objectives import loss_scales, one_step_loss, predict_next
 from .records import code_provenance, data_reference, write_json
-from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples, permute_neighbours
+from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples
 from .scores import final_metrics, rollout_module, selection_score
 from .period import period_ratio, phases, policy_dt, subsample
 
@@ -261,8 +261,6 @@ class Trainer:
         if g is not None and (ac["rotate"] or ac["velocity_boost"] > 0):
             Y, own, target = augment_batch(Y, mask, own, target, self.spec, self.dt, ac["rotate"],
                                            ac["velocity_boost"], g)
-        if g is not None and ac["permute_neighbours"]:
-            Y, mask = permute_neighbours(Y, mask, g)
         noise = None
         if g is not None and self.input_std > 0:
             noise = torch.randn(Y.shape, generator=g) * self.input_std

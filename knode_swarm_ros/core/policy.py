@@ -2,14 +2,10 @@
 
 ``u(Y, mask) = clip(u_theta(features(Y, mask)) + collision + wall, -limit, limit)``
 
-* ``u_theta``: ``network='mlp'`` (default, the paper's): one hidden layer (128 tanh units by
-  default) on features of the whole neighbour matrix; ``frame='relative'`` (default) feeds
-  neighbour states relative to the robot plus the mask (translation invariant; the own position
-  is kept only where walls make absolute position matter), ``frame='absolute'`` the paper's raw
-  masked Y. ``network='pairwise'`` (relative frame only): ``u_self(own) + sum_j u_pair(Y_j - Y_0)``
-  over the heard neighbours, two one-hidden-layer networks of ``hidden`` units; the sum makes the
-  command independent of the order of the rows and of how many are heard, as the observed laws
-  (Tanner, boids) are.
+* ``u_theta``: one hidden layer (128 tanh units by default) on features of the neighbour
+  matrix; ``frame='relative'`` (default) feeds neighbour states relative to the robot plus
+  the mask (translation invariant; the own position is kept only where walls make absolute
+  position matter), ``frame='absolute'`` feeds the paper's raw masked Y.
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
@@ -47,7 +43,6 @@ class PolicyConfig:
     tau: int = 0
     hidden: int = 128
     frame: str = "relative"
-    network: str = "mlp"
     command_limit: float = 10.0
     collision: bool = True
     potential: str = "paper"
@@ -65,7 +60,6 @@ class PolicyConfig:
         checks = {"k": self.k >= 1, "d_cr": self.d_cr > 0, "tau": self.tau >= 0,
                   "hidden": self.hidden >= 1, "frame": self.frame in ("relative", "absolute"),
                   "potential": self.potential in ("paper", "continuous"),
-                  "network": self.network in ("mlp", "pairwise", "kernel", "kernel_rank") and (self.network == "mlp" or self.frame == "relative"),
                   "command_limit": self.command_limit > 0, "collision_d0": self.collision_d0 > 0,
                   "wall_d0": self.wall_d0 > 0, "collision_a": self.collision_a >= 0,
                   "wall_a": self.wall_a >= 0}
@@ -108,21 +102,9 @@ class KNODEPolicy(nn.Module):
         self.wall_d0 = float(config.wall_d0)
         self.continuous = config.potential == "continuous"
         self.box = float(spec.box) if spec.box is not None else 0.0
-        self.pairwise = config.network == "pairwise"
-        self.kernel = config.network in ("kernel", "kernel_rank")
-        self.kernel_rank = config.network == "kernel_rank"
-        d, h, m = spec.state_dim, config.hidden, spec.command_dim
-        if self.kernel:
-            self.net = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
-            n_k = 1 + ((config.k - 1) if self.kernel_rank else 0)
-            self.pair = nn.Sequential(nn.Linear(n_k, h), nn.Tanh(), nn.Linear(h, 2))
-        elif self.pairwise:   # net: the own-state term u_self; pair: the per-neighbour term u_pair
-            self.net = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
-            self.pair = nn.Sequential(nn.Linear(d, h), nn.Tanh(), nn.Linear(h, m))
-        else:
-            n_in = config.k * d + ((config.k - 1) if self.relative else 0)
-            self.net = nn.Sequential(nn.Linear(n_in, h), nn.Tanh(), nn.Linear(h, m))
-            self.pair = nn.Identity()   # unused; TorchScript compiles both branches of forward
+        n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
+        self.net = nn.Sequential(nn.Linear(n_in, config.hidden), nn.Tanh(),
+                                 nn.Linear(config.hidden, spec.command_dim))
         self.collision_gain = AvoidanceGain(config.collision_a, config.collision_phi)
         self.wall_gain = AvoidanceGain(config.wall_a, config.wall_phi)
 
@@ -136,28 +118,6 @@ class KNODEPolicy(nn.Module):
             own = torch.cat([torch.zeros_like(own[:, :self.position_dim]), own[:, self.position_dim:]], dim=1)
         rel = (Y[:, 1:, :] - Y[:, :1, :]) * m[:, 1:, :]
         return torch.cat([own, rel.flatten(1), mask[:, 1:].to(Y.dtype)], dim=1)
-
-    def learnt(self, Y: Tensor, mask: Tensor) -> Tensor:
-        """The network's command ``u_theta [B, m]``."""
-        if not self.pairwise and not self.kernel:
-            return self.net(self.features(Y, mask))
-        own = Y[:, 0, :]
-        if not self.keep_own_position:
-            own = torch.cat([torch.zeros_like(own[:, :self.position_dim]), own[:, self.position_dim:]], dim=1)
-        rel = Y[:, 1:, :] - Y[:, :1, :]                                          # [B, k-1, d]
-        if self.kernel:
-            p = self.position_dim
-            rp, rv = rel[..., :p], rel[..., p:2 * p]
-            dist = torch.sqrt((rp * rp).sum(-1, keepdim=True) + 1e-9)           # [B, k-1, 1]
-            feats = dist
-            if self.kernel_rank:
-                eye = torch.eye(self.k - 1, dtype=Y.dtype, device=Y.device)
-                feats = torch.cat([dist, eye.unsqueeze(0).expand(Y.shape[0], -1, -1)], -1)
-            af = self.pair(feats)                                                # [B, k-1, 2]
-            per_pair = (af[..., :1] * rv + af[..., 1:] * rp / dist) * mask[:, 1:].to(Y.dtype).unsqueeze(-1)
-            return self.net(own) + per_pair.sum(dim=1)
-        per_pair = self.pair(rel) * mask[:, 1:].to(Y.dtype).unsqueeze(-1)       # [B, k-1, m]
-        return self.net(own) + per_pair.sum(dim=1)
 
     def knowledge(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Sum of the knowledge terms ``[B, m]``."""
@@ -178,7 +138,7 @@ class KNODEPolicy(nn.Module):
 
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Command ``[B, m]`` for neighbour matrices ``Y [B, k, d]`` with ``mask [B, k]``."""
-        u = self.learnt(Y, mask) + self.knowledge(Y, mask)
+        u = self.net(self.features(Y, mask)) + self.knowledge(Y, mask)
         return torch.clamp(u, -self.command_limit, self.command_limit)
 
     def metadata(self, dt: Optional[float] = None) -> Dict[str, Any]:
@@ -188,7 +148,7 @@ class KNODEPolicy(nn.Module):
                 "command_dim": spec.command_dim, "command": spec.command, "k": self.config.k,
                 "d_cr": float(self.config.d_cr), "tau": int(self.config.tau),
                 "dt": float(spec.dt if dt is None else dt), "state_layout": list(spec.state_layout),
-                "command_limit": self.command_limit, "frame": self.config.frame, "network": self.config.network,
+                "command_limit": self.command_limit, "frame": self.config.frame,
                 "hidden": self.config.hidden, "config": {k: v for k, v in asdict(self.config).items()
                                                          if k != "extra"}}
         meta.update(self.config.extra)
