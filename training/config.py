@@ -79,7 +79,9 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
     try:
         PolicyConfig(scenario, **policy)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"config field 'policy': {exc}") from None
+        # PolicyConfig says "invalid NAME = VALUE": name it as the user spells it (--set policy.NAME=...)
+        named = [f"policy.{key}" for key in sorted(policy) if f"invalid {key} = " in str(exc)]
+        raise ConfigError(f"config field {(named or ['policy'])[0]!r}: {exc}") from None
     cfg["policy"] = policy
 
     for section, defaults in DEFAULT_CONFIG.items():
