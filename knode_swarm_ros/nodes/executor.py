@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from . import exit_watchdog
 from .common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, ConfigError
 from .native_preload import preloading
 
@@ -71,12 +72,15 @@ class _Interrupts:
     thrown through the EventsExecutor's C++ aborts the process). This handler only records the
     signal; while the node is built it raises :class:`_StartupInterrupted` (the start-up is
     abandoned, not finished first), and afterwards :func:`spin_until` sees the flag between
-    slices (rclpy's handlers are off, so the EventsExecutor installs none of its own).
+    slices (rclpy's handlers are off, so the EventsExecutor installs none of its own). Once
+    everything is saved and the clean-up has begun (``ending``: the exit status), a signal ends
+    the process at once (if the main thread runs Python; a native hang waits for the watchdog).
     """
 
     def __init__(self):
         self.signal: Optional[int] = None
         self.raising = False  # while the node is built (torch import, policy load: seconds)
+        self.ending: Optional[int] = None  # the exit status, once only the clean-up is left
         self._old = {}
 
     def __enter__(self):
@@ -89,6 +93,8 @@ class _Interrupts:
 
     def _note(self, signum, frame) -> None:
         self.signal = signum
+        if self.ending is not None:  # nothing left to save: a second signal need not wait
+            _end_process(self.ending)
         if self.raising:  # do not finish a slow start-up first; nothing of it needs saving
             if not _safe_to_raise(frame):
                 if _inside_torch(frame):
@@ -152,6 +158,7 @@ def _abandon_in_place(frame) -> None:
         frames.append(frame)
         frame = frame.f_back
     try:
+        exit_watchdog.arm(EXIT_OK)  # nothing of it is saved: only native clean-up follows
         _free_half_built(_outermost_node_init(reversed(frames)))
         _end_context()
     finally:
@@ -242,10 +249,12 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
     rcl cannot parse (a broken ``--params-file``) exit with EXIT_CONFIG and a message naming the
     problem; Ctrl-C / SIGTERM at any time, during start-up included, exit cleanly with EXIT_OK;
     anything else prints its traceback and exits with EXIT_FAILURE. ``on_exit(node)`` (reports,
-    saving) always runs before the node is destroyed, and is not interrupted by a second Ctrl-C;
-    a node whose construction a signal or an error cut short is destroyed without it (its handle
-    holds the DDS participant). The process ends here (:func:`_end_process`): call it only as an
-    executable's ``main()``.
+    saving) always runs first, before the node leaves the executor, and is not interrupted by a
+    second Ctrl-C; a node whose construction a signal or an error cut short is destroyed without
+    it (its handle holds the DDS participant). The clean-up after it (native: executor, node,
+    context) runs under :func:`exit_watchdog.arm`'s deadline, and a signal then ends the process
+    at once, with the same status. The process ends here (:func:`_end_process`): call it only as
+    an executable's ``main()``.
     """
     node: Optional[Node] = None
     half_built: Optional[Node] = None  # a node whose construction was cut short: destroyed, no on_exit
@@ -291,16 +300,31 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
                 print(f'knode_swarm_ros {name}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
                 code = EXIT_FAILURE
         finally:
+            if node is not None:
+                code = _save_on_exit(name, node, on_exit, code)
+            # Everything is saved: a stuck native clean-up must not keep the process (a recorder
+            # hung here once, its file written, and was SIGKILLed: the launcher failed the run).
+            interrupts.ending = code
+            exit_watchdog.arm(code)
             _teardown(executor, node)
             if node is not None:
-                try:
-                    on_exit(node)
-                except OSError as exc:
-                    print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
                 destroy_node(node)
             _free_half_built(half_built)
             _end_context()
     _end_process(code)
+
+
+def _save_on_exit(name: str, node: Node, on_exit: Callable[[Node], None], code: int) -> int:
+    """Run ``on_exit(node)``; returns the exit status (EXIT_FAILURE if it failed unexpectedly)."""
+    try:
+        on_exit(node)
+    except OSError as exc:
+        print(f'knode_swarm_ros {name}: cannot write on exit: {exc}', file=sys.stderr)
+    except Exception as exc:  # noqa: BLE001 - report it; the clean-up must still happen
+        traceback.print_exc()
+        print(f'knode_swarm_ros {name}: error on exit: {type(exc).__name__}: {exc}', file=sys.stderr)
+        return EXIT_FAILURE
+    return code
 
 
 def _end_process(code: int) -> None:
@@ -314,8 +338,7 @@ def _end_process(code: int) -> None:
     never runs that destructor.
     """
     try:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        exit_watchdog.flush_std()
     finally:
         os._exit(code)
 
