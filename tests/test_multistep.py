@@ -276,6 +276,19 @@ def test_a_missing_init_policy_is_a_config_error_naming_the_field(tmp_path):
         Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
 
 
+@pytest.mark.parametrize("field, value", [("potential", "continuous"), ("collision_d0", 0.5), ("d_cr", 2.0)])
+def test_an_init_policy_with_another_law_is_a_config_error_naming_both(tmp_path, field, value):
+    # the state dict carries no knowledge form or network: without this check a paper-potential
+    # model would be fine-tuned as a continuous one, its law silently changed
+    data = _data(tmp_path)
+    Trainer(normalise_config(_raw()), data, str(tmp_path / "init"), progress=False, log=lambda *a: None).finish()
+    raw = _raw()
+    cfg = normalise_config({**raw, "policy": {**raw["policy"], field: value},
+                            "multistep": {**raw["multistep"], "init": str(tmp_path / "init")}})
+    with pytest.raises(ConfigError, match=rf"multistep.init.*policy\.{field} is .*, the config's {value!r}"):
+        Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
+
+
 def test_config_file_of_the_shipped_multistep_run_is_valid():
     import os
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

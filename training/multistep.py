@@ -212,16 +212,32 @@ def rollout_windows(policy, spec: Scenario, cfg_policy: Dict[str, Any], dt: floa
     return torch.stack(frames, dim=1)
 
 
-def load_init_state(path: str) -> Dict[str, Tensor]:
+# What a policy file's state dict does not carry but its module computes with: the knowledge
+# form and ranges, and the information network. The starting model must agree on them.
+_INIT_MUST_MATCH = ("potential", "collision", "collision_d0", "wall", "wall_d0", "k", "d_cr", "tau", "frame")
+
+
+def load_init_state(path: str, policy_cfg: Optional[Dict[str, Any]] = None) -> Dict[str, Tensor]:
     """Parameters of the starting model: a policy file (TorchScript) or a run directory
-    (its ``policy.pt``). The module must have the configured architecture."""
+    (its ``policy.pt``). The module must have the configured architecture, and (given
+    ``policy_cfg``) the configured knowledge form and network (``ValueError`` naming the field:
+    a paper-potential model fine-tuned as a continuous one would silently change its law)."""
     import os
+
+    from knode_swarm_ros.core import load_policy
 
     if os.path.isdir(path):
         path = os.path.join(path, "policy.pt")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"multistep.init {path}: no such policy file")
-    return {k: v.detach().clone() for k, v in torch.jit.load(path, map_location="cpu").state_dict().items()}
+    loaded = load_policy(path)
+    if policy_cfg is not None:
+        have = dict(loaded.meta.get("config", {}))
+        have.setdefault("potential", "paper")      # files from before the field existed
+        for name in _INIT_MUST_MATCH:
+            if name in have and name in policy_cfg and have[name] != policy_cfg[name]:
+                raise ValueError(f"its policy.{name} is {have[name]!r}, the config's {policy_cfg[name]!r}")
+    return {k: v.detach().clone() for k, v in loaded.module.state_dict().items()}
 
 
 class MultiStepObjective:

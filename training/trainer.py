@@ -156,7 +156,7 @@ class Trainer:
             self.multi = MultiStepObjective(cfg, self.spec, self.dt, phases(self.split["train"], self.ratio))
             if cfg["multistep"]["init"] is not None:
                 try:
-                    self.policy.load_state_dict(load_init_state(cfg["multistep"]["init"]))
+                    self.policy.load_state_dict(load_init_state(cfg["multistep"]["init"], cfg["policy"]))
                 except (OSError, RuntimeError, ValueError) as exc:
                     raise ConfigError(f"config field 'multistep.init' = {cfg['multistep']['init']!r}: {exc}") from None
         tc = cfg["training"]
