@@ -138,6 +138,7 @@ def test_period_ratio():
     assert period_ratio(0.01, 0.05) == 5 and period_ratio(0.01, 0.1) == 10 and period_ratio(0.01, 0.01) == 1
     assert period_ratio(1 / 60, 1 / 20) == 3
     assert policy_dt(0.01, 5) == 0.05 and policy_dt(0.01, 3) == 0.03
+    assert policy_dt(1 / 60, 1) == 1 / 60 and policy_dt(1 / 60, 2) == 2 / 60   # never rounded off the grid
     for bad in (0.035, 0.005, 0.0, -0.05, math.inf):
         with pytest.raises(ValueError, match='data.policy_dt'):
             period_ratio(0.01, bad)

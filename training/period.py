@@ -39,9 +39,12 @@ def period_ratio(data_dt: float, target_dt: Optional[float], field: str = "data.
 
 
 def policy_dt(data_dt: float, ratio: int) -> float:
-    """The policy's dt in seconds, ``data_dt * ratio`` rounded to 12 significant digits (so that
-    0.01 x 5 is written as 0.05 in knode.json)."""
-    return float(f"{float(data_dt) * int(ratio):.12g}")
+    """The policy's dt in seconds, ``data_dt * ratio``; its 12-significant-digit form where that
+    is the same number to a few ulps (0.01 x 5 is written 0.05, not 0.05000000000000001), never
+    where it is not (1/60 stays 1/60: 3e-14 of dt measurably changed chaotic boids rollouts)."""
+    exact = float(data_dt) * int(ratio)
+    short = float(f"{exact:.12g}")
+    return short if abs(short - exact) <= 4 * np.finfo(float).eps * abs(exact) else exact
 
 
 def subsample(states: np.ndarray, ratio: int) -> np.ndarray:
