@@ -72,9 +72,12 @@ def test_compare_command_writes_the_table_for_every_controller(tmp_path, untrain
     data = tmp_path / "d.npz"
     save_trajectories(data, states, 0.01, "flock2d", {"split": {"train": [0, 1], "test": [2]}})
     out = tmp_path / "cmp"
+    docs = tmp_path / "docs"
     rc = main(["--data", str(data), "--out", str(out), "--policy", f"a={untrained_policies['flock2d']}",
-               "--sizes", "4", "6", "--ics", "2", "--steps", "20"])
+               "--sizes", "4", "6", "--ics", "2", "--steps", "20", "--docs", str(docs)])
     assert rc == 0
+    assert (docs / "compare_controllers_flock2d.md").read_text() == (out / "table.md").read_text()
+    assert (docs / "figures" / "compare_controllers_flock2d.png").read_bytes() == (out / "compare.png").read_bytes()
     r = json.loads((out / "results.json").read_text())
     names = {(row["robots"], row["controller"]) for row in r["rows"]}
     assert names == {(n, c) for n in (4, 6) for c in ("ground_truth", "a", "local_tanner", "kernel")}

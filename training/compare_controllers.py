@@ -11,7 +11,9 @@ least-squares interaction-kernel baseline of :mod:`training.kernel_baseline`, fi
 data's train split). Starts: :func:`core.groundtruth.simulate` at each size with seeds the data
 never used (``--seed`` + n), which also gives the observed (ground-truth) swarm. Metrics (core):
 final avd, amd (last 10 frames), smallest pair distance after 1 s. Writes ``results.json``,
-``table.md`` and ``compare.png`` under ``--out``.
+``table.md`` and ``compare.png`` under ``--out``; ``--docs DIR`` also puts the table and the figure
+where the documentation shows them (``DIR/compare_controllers_flock2d.md``,
+``DIR/figures/compare_controllers_flock2d.png``).
 """
 from __future__ import annotations
 
@@ -165,6 +167,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                         help="held-out starts per size (one number: the same for all)")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=50000, help="start seeds are SEED + n (the data used 0..)")
+    parser.add_argument("--docs", default=None, help="also write the table and figure into this docs directory")
     args = parser.parse_args(argv)
     import torch
     torch.set_num_threads(1)
@@ -172,6 +175,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     if len(ics) != len(args.sizes) or min(ics) < 2 or min(args.sizes) < 2:
         raise KnodeError(f"--ics {args.ics}: one count >= 2, or one per size of --sizes {args.sizes}")
     compare(_named(args.policy), args.data, args.out, args.sizes, ics, args.steps, args.seed)
+    if args.docs is not None:
+        import shutil
+        os.makedirs(os.path.join(args.docs, "figures"), exist_ok=True)
+        shutil.copyfile(os.path.join(args.out, "table.md"), os.path.join(args.docs, "compare_controllers_flock2d.md"))
+        shutil.copyfile(os.path.join(args.out, "compare.png"),
+                        os.path.join(args.docs, "figures", "compare_controllers_flock2d.png"))
     return 0
 
 
