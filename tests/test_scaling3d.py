@@ -321,3 +321,28 @@ def test_knowledge_variant_changes_only_the_knowledge_settings(tmp_path, capsys)
         assert variant_main([pol, *bad, "--out", str(tmp_path / "bad.pt")]) == 2, bad
     assert not (tmp_path / "bad.pt").exists()
     assert "collision_d0" in capsys.readouterr().err
+
+
+def test_knowledge_variant_switches_the_potential_form(tmp_path, capsys):
+    # the same network and gains with the other avoidance potential (an ablation of the form alone)
+    from knode_swarm_ros.core import load_policy
+    from training.knowledge_variant import main as variant_main
+    pol = _tiny_policy(tmp_path)
+    original = load_policy(pol)
+    assert original.meta["config"]["potential"] == "paper"
+    out = tmp_path / "c.pt"
+    assert variant_main([pol, "--set", "potential=continuous", "--out", str(out)]) == 0
+    v = load_policy(str(out))
+    assert v.meta["config"]["potential"] == "continuous"
+    ref = KNODEPolicy(PolicyConfig("boids3d", **{**DEFAULTS["boids3d"], "hidden": 8, "potential": "continuous"}))
+    ref.load_state_dict(original.module.state_dict())
+    torch.manual_seed(1)
+    Y = torch.randn(64, 6, 6) * 0.6
+    Y[:, 0, :3] = 4.5
+    mask = torch.ones(64, 6)
+    with torch.no_grad():
+        np.testing.assert_allclose(v(Y, mask), ref(Y, mask).numpy(), atol=1e-6)
+    assert np.abs(v(Y, mask) - original(Y, mask)).max() > 1e-3
+    assert variant_main([pol, "--set", "potential=smooth", "--out", str(tmp_path / "bad.pt")]) == 2
+    assert not (tmp_path / "bad.pt").exists()
+    assert "potential" in capsys.readouterr().err

@@ -22,7 +22,7 @@ from knode_swarm_ros.core.errors import KnodeError
 from .records import code_provenance
 
 #: The knowledge settings this tool may change (PolicyConfig fields that hold no parameters).
-CHANGEABLE = {"collision": bool, "collision_d0": float, "wall": bool, "wall_d0": float}
+CHANGEABLE = {"collision": bool, "collision_d0": float, "wall": bool, "wall_d0": float, "potential": str}
 
 
 def parse_changes(items: List[str]) -> Dict[str, Any]:
@@ -36,6 +36,8 @@ def parse_changes(items: List[str]) -> Dict[str, Any]:
             if value.lower() not in ("true", "false"):
                 raise KnodeError(f"--set {item!r}: {key} takes true or false")
             changes[key] = value.lower() == "true"
+        elif CHANGEABLE[key] is str:
+            changes[key] = value          # PolicyConfig names a bad one
         else:
             try:
                 changes[key] = float(value)
