@@ -8,22 +8,18 @@ replaced by a ``pause()`` through ``ctypes.PyDLL``: native code that keeps the G
 calls do, so neither a Python signal handler nor a Python thread can end it. The tests wait only
 for polled conditions (log lines, exit) with generous deadlines; no timing is asserted.
 """
-import os
 import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
 
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
+from node_processes import start, stop, wait_for
 from knode_swarm_ros.core import load_trajectories
 from knode_swarm_ros.nodes.swarm.shm import shm_cleanup, shm_snapshot
 
 pytestmark = pytest.mark.ros
 
-WAIT_S = 120  # generous: only a hang fails
 ROBOTS = 3
 STEPS = 30
 SEED = 5
@@ -43,40 +39,24 @@ recorder.main()
 """
 
 
-def _start(argv, log):
-    env = dict(os.environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
-    return subprocess.Popen([sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
 
 
 def _recorder(tmp_path, step, deadline, *params):
     log_path = tmp_path / 'recorder.log'
     with open(log_path, 'wb') as log:
-        proc = _start(['-c', _HUNG_RECORDER.format(step=step, deadline=deadline), '-p', f'robots:={ROBOTS}',
+        proc = start(['-c', _HUNG_RECORDER.format(step=step, deadline=deadline), '-p', f'robots:={ROBOTS}',
                        '-p', f"output:={tmp_path / 'rec.npz'}", '-p', 'use_sim_time:=true', *params], log)
     return proc, log_path
 
 
 def _simulator(tmp_path, *params):
     with open(tmp_path / 'simulator.log', 'wb') as log:
-        return _start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', '-p', f'robots:={ROBOTS}',
+        return start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', '-p', f'robots:={ROBOTS}',
                        '-p', 'wait_for_agents:=false', *params], log)
 
 
-def _wait_for(proc, log_path, text):
-    deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline and proc.poll() is None and text not in log_path.read_text(errors='replace'):
-        time.sleep(0.05)
-    assert proc.poll() is None and text in log_path.read_text(errors='replace'), log_path.read_text(errors='replace')
 
 
-def _wait(proc):
-    try:
-        return proc.wait(timeout=WAIT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tmp_path, ros_domain_id):
@@ -88,12 +68,12 @@ def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tm
     sim = _simulator(tmp_path, '-p', f'steps:={STEPS}', '-p', 'mode:=lockstep', '-p', 'ground_truth:=true',
                      '-p', 'wait_for_recorder:=true', '-p', f'seed:={SEED}')
     try:
-        rc = _wait(rec)
+        rc = stop(rec)
         text = rec_log.read_text(errors='replace')
         assert 'clean-up hangs' in text, text   # the hang was reached: the exit is the watchdog's
         assert rc == 0 and 'Traceback' not in text, f'rc {rc}\n{text}'
         assert 'hung_clean_up' in text, text  # faulthandler's dump names where it hung
-        assert _wait(sim) == 0, (tmp_path / 'simulator.log').read_text(errors='replace')
+        assert stop(sim) == 0, (tmp_path / 'simulator.log').read_text(errors='replace')
     finally:
         for proc in (rec, sim):
             if proc.poll() is None:
@@ -113,18 +93,18 @@ def test_a_second_signal_during_a_hung_clean_up_ends_it_after_the_save(tmp_path,
     sim = _simulator(tmp_path, '-p', 'steps:=0', '-p', 'mode:=realtime', '-p', 'publish_rate:=20.0')
     rec, rec_log = _recorder(tmp_path, '_teardown', 3600.0)
     try:
-        _wait_for(rec, rec_log, f'heard all {ROBOTS} robots: ready')
+        wait_for(rec, rec_log, f'heard all {ROBOTS} robots: ready')
         rec.send_signal(signal.SIGTERM)
-        _wait_for(rec, rec_log, 'clean-up hangs')
+        wait_for(rec, rec_log, 'clean-up hangs')
         rec.send_signal(signal.SIGTERM)
-        rc = _wait(rec)
+        rc = stop(rec)
         text = rec_log.read_text(errors='replace')
         assert rc == 0 and 'Traceback' not in text, f'rc {rc}\n{text}'
     finally:
         for proc in (rec, sim):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-                _wait(proc)
+                stop(proc)
         shm_cleanup(before)
     got = load_trajectories(tmp_path / 'rec.npz')
     assert got.meta['interrupted'] is True

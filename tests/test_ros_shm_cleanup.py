@@ -8,30 +8,23 @@ ports on almost every stop: rclpy's LifecycleNode.destroy_node keeps the state m
 holds the node, which keeps the DDS participant past the context's end. The tests wait only for
 polled conditions (log lines) with generous deadlines; the 2 s figure is bench/bench_shutdown.py's.
 """
-import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
+from node_processes import start, stop, wait_for
 from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot
 
 pytestmark = pytest.mark.ros
 
-WAIT_S = 120  # generous: only a hang fails
 ROBOTS = 2
 TRAFFIC = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
            '-p', 'publish_rate:=20.0']
 
 
-def _start(argv, log):
-    env = dict(os.environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
-    return subprocess.Popen([sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
 
 
 def _node_argv(node, tmp_path, policy):
@@ -48,11 +41,6 @@ def _node_argv(node, tmp_path, policy):
     return ['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], ready
 
 
-def _wait_for(proc, log_path, text):
-    deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline and proc.poll() is None and text not in log_path.read_text(errors='replace'):
-        time.sleep(0.05)
-    assert proc.poll() is None and text in log_path.read_text(errors='replace'), log_path.read_text(errors='replace')
 
 
 def _held_while_running(proc) -> set:
@@ -80,14 +68,6 @@ def _port_mappers(held) -> dict:
     return found
 
 
-def _stop(proc, sig):
-    proc.send_signal(sig)
-    try:
-        return proc.wait(timeout=WAIT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.mark.parametrize('node,sig', [('agent', signal.SIGINT), ('agent', signal.SIGTERM),
@@ -97,26 +77,26 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
                                                                       ros_domain_id):
     traffic = None
     if node != 'simulator':
-        traffic = _start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
+        traffic = start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
                          open(tmp_path / 'traffic.log', 'wb'))
     try:
         argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
         log_path = tmp_path / f'{node}.log'
         before = frozenset(shm_snapshot())  # a port a killed process left earlier is not this node's
         with open(log_path, 'wb') as log:
-            proc = _start(argv, log)
-        _wait_for(proc, log_path, ready)
+            proc = start(argv, log)
+        wait_for(proc, log_path, ready)
         held = _held_while_running(proc)
         ours = {proc.pid} | ({traffic.pid} if traffic is not None else set())
         foreign = {port for port, pids in _port_mappers(held).items() if pids - ours}
-        rc = _stop(proc, sig)
+        rc = stop(proc, sig)
         text = log_path.read_text(errors='replace')
         assert rc == 0 and 'Traceback' not in text and 'Aborted' not in text, f'rc {rc}\n{text}'
         segments = {name for name in held if 'port' not in name}
         assert shm_left_by(segments) == [], f'{node} left its segment after {sig.name}\n{text[-2000:]}'
     finally:
         if traffic is not None:
-            assert _stop(traffic, signal.SIGINT) == 0
+            assert stop(traffic, signal.SIGINT) == 0
     # A port the node listened on is also open in the peers that sent to it: it goes with the last.
     # A peer outside this test (a process of a concurrent suite whose domain claim ended before it
     # did) that is killed later leaves the port behind whatever the node does: not the node's.
@@ -161,10 +141,10 @@ def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, 
     log_path = tmp_path / f'{node}.log'
     before = frozenset(shm_snapshot())
     with open(log_path, 'wb') as log:
-        proc = _start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
-    _wait_for(proc, log_path, 'blocked in construction')
+        proc = start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
+    wait_for(proc, log_path, 'blocked in construction')
     held = _held_while_running(proc)  # the half-built node already has its DDS participant
-    rc = _stop(proc, sig)
+    rc = stop(proc, sig)
     text = log_path.read_text(errors='replace')
     assert rc == 0 and 'Traceback' not in text and 'KeyboardInterrupt' not in text, f'rc {rc}\n{text}'
     assert '(k=' not in text and ': running' not in text, text  # what a built node logs: it never got there
