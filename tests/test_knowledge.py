@@ -16,10 +16,10 @@ def float64():
     torch.set_default_dtype(old)
 
 
-def matrices(own, neighbours, mask_rows, d=4):
-    """Y [1, k, d] with positions given, zero velocities; mask from mask_rows."""
+def matrices(own, neighbours, mask_rows, d=None):
+    """Y [1, k, d] with the positions given (d = 2 p: zero velocities), mask [1, k] from mask_rows."""
     rows = [own] + neighbours
-    Y = torch.zeros(1, len(rows), d)
+    Y = torch.zeros(1, len(rows), d or 2 * len(own))
     Y[0, :, :len(own)] = torch.tensor(rows, dtype=torch.float64)
     return Y, torch.tensor([mask_rows], dtype=torch.float64)
 

@@ -13,23 +13,7 @@ import torch
 from knode_swarm_ros.core.knowledge import (collision_avoidance, continuous_collision_avoidance,
                                             continuous_collision_potential, continuous_wall_avoidance,
                                             continuous_wall_potential, wall_avoidance)
-
-
-@pytest.fixture(autouse=True)
-def float64():
-    """These checks compare against autograd in double precision; restore the default after."""
-    old = torch.get_default_dtype()
-    torch.set_default_dtype(torch.float64)
-    yield
-    torch.set_default_dtype(old)
-
-
-def matrices(own, neighbours, mask_rows, d=None):
-    """Y [1, k, d] with the positions given (d = 2 p: zero velocities), mask [1, k] from mask_rows."""
-    rows = [own] + neighbours
-    Y = torch.zeros(1, len(rows), d or 2 * len(own))
-    Y[0, :, :len(own)] = torch.tensor(rows, dtype=torch.float64)
-    return Y, torch.tensor([mask_rows], dtype=torch.float64)
+from test_knowledge import float64, matrices  # noqa: F401  (float64: the autouse double-precision fixture)
 
 
 def both(Y, mask, p, gain, d0, **kw):
