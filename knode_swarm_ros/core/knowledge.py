@@ -60,6 +60,27 @@ def _closest_active(Y: Tensor, mask: Tensor, position_dim: int):
     return r, best
 
 
+def _unit(r: Tensor, dist: Tensor) -> Tensor:
+    """``r / dist`` (``dist`` broadcast over the last axis), or +x, the first position axis, where
+    dist = 0 (module comment). The safe divisor keeps autograd free of 0/0 in the branch not taken."""
+    axis = (torch.arange(r.shape[-1], device=r.device) == 0).to(r.dtype)   # [p], broadcast (ONNX-exportable)
+    apart = dist > 0
+    return torch.where(apart, r / torch.where(apart, dist, torch.ones_like(dist)), axis)
+
+
+def _wall_pushes(position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float,
+                 continuous: bool) -> Tensor:
+    """Both wall terms ``[B, p]``: per face within d0, lambda / d^3 (paper) or
+    lambda (1/d - 1/d0) / d^2 (continuous) along the inward normal, distances floored."""
+    up = (box - position).clamp(min=min_distance)      # distance to the +box faces
+    down = (position + box).clamp(min=min_distance)    # distance to the -box faces
+    zero = torch.zeros_like(position)
+    if continuous:
+        return (torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up ** 2, zero)
+                + torch.where(down < d0, gain * (1.0 / down - 1.0 / d0) / down ** 2, zero))
+    return torch.where(up <= d0, -gain / up ** 3, zero) + torch.where(down <= d0, gain / down ** 3, zero)
+
+
 def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
                         min_distance: float = 1e-3) -> Tensor:
     """Repulsion from the closest active neighbour only.
@@ -80,12 +101,8 @@ def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor
     near = (dist <= d0).unsqueeze(-1)
     d = dist.clamp(min=min_distance).masked_fill(~near.squeeze(-1), 1.0).unsqueeze(-1)
     force = gain * r / d ** 4
-    # Inside the floor: the floored magnitude along r / |r|, or along +x when r = 0 (module
-    # comment). The safe divisor keeps autograd free of 0/0 in the branch not taken.
-    axis = torch.zeros_like(r)
-    axis[:, 0] = 1.0
-    apart = (dist > 0).unsqueeze(-1)
-    unit = torch.where(apart, r / torch.where(apart, dist.unsqueeze(-1), torch.ones_like(d)), axis)
+    # inside the floor: the floored magnitude along r / |r| (or +x)
+    unit = _unit(r, dist.unsqueeze(-1))
     inside = (dist < min_distance).unsqueeze(-1)
     force = torch.where(inside, gain * unit / (min_distance ** 3), force)
     return torch.where(near, force, torch.zeros_like(r))
@@ -101,12 +118,7 @@ def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_di
         ``[B, p]``: for each face within d0, lambda / d^3 along the inward normal. A robot
         already outside the box is pushed back in with the floored distance.
     """
-    up = (box - position).clamp(min=min_distance)      # distance to the +box faces
-    down = (position + box).clamp(min=min_distance)    # distance to the -box faces
-    zero = torch.zeros_like(position)
-    push_down = torch.where(up <= d0, -gain / up ** 3, zero)
-    push_up = torch.where(down <= d0, gain / down ** 3, zero)
-    return push_down + push_up
+    return _wall_pushes(position, box, gain, d0, min_distance, False)
 
 
 def continuous_collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
@@ -122,10 +134,7 @@ def continuous_collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, g
     dist = torch.linalg.vector_norm(offsets, dim=-1, keepdim=True)               # [B, k-1, 1]
     near = (dist < d0) & (mask[:, 1:] > 0).unsqueeze(-1)
     d = dist.clamp(min=min_distance)
-    axis = torch.zeros_like(offsets)
-    axis[..., 0] = 1.0
-    apart = dist > 0
-    unit = torch.where(apart, offsets / torch.where(apart, dist, torch.ones_like(dist)), axis)
+    unit = _unit(offsets, dist)
     magnitude = gain * (1.0 / d - 1.0 / d0) / d ** 2
     return torch.where(near, magnitude * unit, torch.zeros_like(offsets)).sum(dim=1)
 
@@ -134,12 +143,7 @@ def continuous_wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: fl
                               min_distance: float = 1e-3) -> Tensor:
     """Per face within d0, lambda (1/d - 1/d0) / d^2 along the inward normal ``[B, p]``
     (floored distance outside the box, as :func:`wall_avoidance`)."""
-    up = (box - position).clamp(min=min_distance)
-    down = (position + box).clamp(min=min_distance)
-    zero = torch.zeros_like(position)
-    push_down = torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up ** 2, zero)
-    push_up = torch.where(down < d0, gain * (1.0 / down - 1.0 / d0) / down ** 2, zero)
-    return push_down + push_up
+    return _wall_pushes(position, box, gain, d0, min_distance, True)
 
 
 def continuous_collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
