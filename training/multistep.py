@@ -217,6 +217,13 @@ def rollout_windows(policy, spec: Scenario, cfg_policy: Dict[str, Any], dt: floa
 _INIT_MUST_MATCH = ("potential", "collision", "collision_d0", "wall", "wall_d0", "k", "d_cr", "tau", "frame")
 
 
+def _policy_defaults() -> Dict[str, Any]:
+    import dataclasses
+
+    from knode_swarm_ros.core.policy import PolicyConfig
+    return {f.name: f.default for f in dataclasses.fields(PolicyConfig) if f.default is not dataclasses.MISSING}
+
+
 def load_init_state(path: str, policy_cfg: Optional[Dict[str, Any]] = None) -> Dict[str, Tensor]:
     """Parameters of the starting model: a policy file (TorchScript) or a run directory
     (its ``policy.pt``). The module must have the configured architecture, and (given
@@ -232,10 +239,10 @@ def load_init_state(path: str, policy_cfg: Optional[Dict[str, Any]] = None) -> D
         raise FileNotFoundError(f"multistep.init {path}: no such policy file")
     loaded = load_policy(path)
     if policy_cfg is not None:
-        have = dict(loaded.meta.get("config", {}))
-        have.setdefault("potential", "paper")      # files from before the field existed
+        # a field newer than the file has its default in the file's module (e.g. potential: paper)
+        have = {**_policy_defaults(), **loaded.meta.get("config", {})}
         for name in _INIT_MUST_MATCH:
-            if name in have and name in policy_cfg and have[name] != policy_cfg[name]:
+            if name in policy_cfg and have[name] != policy_cfg[name]:
                 raise ValueError(f"its policy.{name} is {have[name]!r}, the config's {policy_cfg[name]!r}")
     return {k: v.detach().clone() for k, v in loaded.module.state_dict().items()}
 
