@@ -197,7 +197,8 @@ def test_scaling_driver_bad_arguments(tmp_path, capsys):
 
 
 def test_grid_boids3d_rollouts_per_start_and_reevaluation(tmp_path):
-    from training.grid import main as grid_main, perturbed_starts
+    from training.grid import main as grid_main
+    from training.scores import perturbed_starts
     z0 = simulate("boids3d", 2, 5, 1, seed=3, progress=False)[:, 0]
     z = perturbed_starts(z0, 3, 1e-3, 3)
     assert z.shape == (6, 5, 6)

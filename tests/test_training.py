@@ -324,3 +324,34 @@ def test_grid_cells_are_resumable_and_skip_finished(tmp_path, monkeypatch):
     results = json.loads((tmp_path / "grid" / "results.json").read_text())
     assert sorted(results["finished"]) == ["dcr2_k3", "dcr3_k3"]
     assert (tmp_path / "grid" / "heatmap_avd_final_mean.png").is_file()
+
+
+def test_selection_rolls_out_perturbed_copies_of_each_start(tmp_path):
+    data, _ = _teacher_data(tmp_path, trajectories=5)
+    starts = []
+
+    def trainer(tag, **selection):
+        _, cfg = _config(tmp_path, selection={"every": 1, "trajectories": 1, **selection})
+        return Trainer(cfg, data, str(tmp_path / tag), progress=False, log=lambda *a: None)
+
+    with spy_on_selection_rollouts(lambda z0, steps, dt: starts.append(np.array(z0))):
+        three = trainer("three", rollouts=3, perturb=1e-3).select_metrics()
+        one = trainer("one").select_metrics()
+        same = trainer("same", rollouts=3, perturb=0.0).select_metrics()
+    z0 = starts[0]
+    assert z0.shape[0] == 3 and starts[1].shape[0] == 1
+    np.testing.assert_array_equal(z0[0], starts[1][0])                 # copy 0 is the start itself
+    np.testing.assert_array_equal(z0[1:, :, 2:], z0[[0, 0], :, 2:])     # velocities untouched
+    moved = np.abs(z0[1:, :, :2] - z0[0, :, :2])
+    assert 0 < moved.max() < 1e-2 and not np.array_equal(z0[1], z0[2])  # positions moved ~1e-3, each copy its own
+    assert three["rollouts"] == 3 and one["rollouts"] == 1 and three["avd_final_se"] >= 0
+    assert "avd_final_se" not in one                                     # no spread from one rollout
+    # three unperturbed copies are three equal rollouts: the score of one, a spread of 0
+    assert same["score"] == pytest.approx(one["score"], rel=1e-12) and same["avd_final_se"] == pytest.approx(0.0, abs=1e-15)
+
+
+@pytest.mark.parametrize("field, value", [("rollouts", 0), ("rollouts", 1.5), ("rollouts", "3"),
+                                          ("perturb", -1e-3), ("perturb", float("inf")), ("perturb", "x")])
+def test_selection_rollouts_and_perturb_are_checked(field, value):
+    with pytest.raises(ConfigError, match=f"'selection.{field}'"):
+        normalise_config({"scenario": "flock2d", "selection": {field: value}})

@@ -33,7 +33,7 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
     "multistep": {"init": None, "horizons": [10, 50, 200], "epochs": [2, 2, 2], "windows_per_epoch": 256,
                   "batch_windows": 16, "units": "command", "checkpoint": 0, "velocity_weight": 1.0,
                   "consensus_weight": 0.0},
-    "selection": {"every": 5, "trajectories": 4, "steps": None},
+    "selection": {"every": 5, "trajectories": 4, "steps": None, "rollouts": 1, "perturb": 1.0e-3},
     "augment": {"rotate": False, "velocity_boost": 0.0},
 }
 NOISE_VARIANCE = {"flock2d": 0.001, "boids3d": 0.01}
@@ -146,6 +146,8 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
     _check(isinstance(s["every"], int) and s["every"] >= 0, "selection.every", s["every"], "must be an integer >= 0 (0 = off)")
     _check(pos_int(s["trajectories"]), "selection.trajectories", s["trajectories"], "must be an integer >= 1")
     _check(s["steps"] is None or pos_int(s["steps"]), "selection.steps", s["steps"], "must be null or an integer >= 1")
+    _check(pos_int(s["rollouts"]), "selection.rollouts", s["rollouts"], "must be an integer >= 1")
+    _check(num(s["perturb"]) and s["perturb"] >= 0, "selection.perturb", s["perturb"], "must be a number >= 0")
     _check_multistep(cfg, raw, pos_int)
     return cfg
 

@@ -32,25 +32,12 @@ from knode_swarm_ros.core.errors import KnodeError
 from . import figures
 from .config import load_config
 from .records import write_json
-from .scores import final_metrics, rollout_policy
+from .scores import final_metrics, perturbed_starts, rollout_policy
 from .trainer import DivergenceError, Trainer
 
 
 def cell_name(d_cr: float, k: int) -> str:
     return f"dcr{d_cr:g}_k{k}"
-
-
-def perturbed_starts(z0: np.ndarray, rollouts: int, perturb: float, position_dim: int, seed: int = 0) -> np.ndarray:
-    """``rollouts`` copies of every start ``z0 [S, n, d]`` -> ``[S * rollouts, n, d]`` (start-major).
-
-    Copy 0 is the start itself; copy r > 0 has Gaussian noise of std ``perturb`` on the positions
-    (seed ``seed + r``): several rollouts of one start sample the chaotic spread of the swarm.
-    """
-    out = np.repeat(np.asarray(z0, dtype=np.float64), rollouts, axis=0)
-    for r in range(1, rollouts):
-        rng = np.random.default_rng(seed + r)
-        out[r::rollouts, :, :position_dim] += perturb * rng.standard_normal(out[r::rollouts, :, :position_dim].shape)
-    return out
 
 
 def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts: int = 1, perturb: float = 1e-3,

@@ -54,6 +54,19 @@ def final_metrics(spec: Scenario, pred: np.ndarray, truth: Optional[np.ndarray] 
     return out
 
 
+def perturbed_starts(z0: np.ndarray, rollouts: int, perturb: float, position_dim: int, seed: int = 0) -> np.ndarray:
+    """``rollouts`` copies of every start ``z0 [S, n, d]`` -> ``[S * rollouts, n, d]`` (start-major).
+
+    Copy 0 is the start itself; copy r > 0 has Gaussian noise of std ``perturb`` on the positions
+    (seed ``seed + r``): several rollouts of one start sample the chaotic spread of the swarm.
+    """
+    out = np.repeat(np.asarray(z0, dtype=np.float64), rollouts, axis=0)
+    for r in range(1, rollouts):
+        rng = np.random.default_rng(seed + r)
+        out[r::rollouts, :, :position_dim] += perturb * rng.standard_normal(out[r::rollouts, :, :position_dim].shape)
+    return out
+
+
 def selection_score(spec: Scenario, m: Dict[str, Any]) -> float:
     """Scalar for model selection by rollouts (lower is better).
 

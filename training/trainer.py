@@ -26,7 +26,7 @@ from .config import ConfigError, build_policy
 from .objectives import loss_scales, one_step_loss, predict_next
 from .records import code_provenance, data_reference, write_json
 from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples
-from .scores import final_metrics, rollout_module, selection_score
+from .scores import final_metrics, perturbed_starts, rollout_module, selection_score
 from .period import period_ratio, phases, policy_dt, subsample
 
 
@@ -290,14 +290,22 @@ class Trainer:
             truth = subsample(split["val"][: sc["trajectories"]], self.ratio)   # frames at the policy's dt
             steps = truth.shape[1] - 1 if sc["steps"] is None else min(sc["steps"], truth.shape[1] - 1)
             truth = truth[:, : steps + 1]
-            pred = rollout_module(self.policy, self.spec, truth[:, 0], steps, self.cfg["policy"], self.dt)
+            # several rollouts per start sample the chaotic spread (copy 0 is the start itself; the
+            # same perturbations every epoch and run, so epochs are ranked on the same draws)
+            starts = perturbed_starts(truth[:, 0], sc["rollouts"], sc["perturb"], self.spec.position_dim)
+            pred = rollout_module(self.policy, self.spec, starts, steps, self.cfg["policy"], self.dt)
             if not np.all(np.isfinite(pred)):
                 self.policy.train()
                 return {"score": float("inf")}
+            truth = np.repeat(truth, sc["rollouts"], axis=0)
             for key, values in final_metrics(self.spec, pred, truth, dt=self.dt).items():
                 m.setdefault(key, []).extend(values)
         self.policy.train()
-        out = {"score": selection_score(self.spec, m)}
+        out = {"score": selection_score(self.spec, m), "rollouts": len(m["amd_final"])}
+        # the spread behind the score: standard error of its per-rollout term over the rollouts
+        spread_key = "avd_final" if self.spec.name == "flock2d" else "pod_kld"
+        if len(m.get(spread_key, [])) > 1:
+            out[spread_key + "_se"] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
         for key in ("avd_final", "amd_final", "truth_amd_final", "truth_avd_final", "pod_kld", "min_distance"):
             if key in m:
                 out[key] = float(np.min(m[key]) if key == "min_distance" else np.mean(m[key]))

@@ -69,9 +69,9 @@ def evaluate_policies(policies: Sequence[Tuple[str, str]], datasets: Sequence[Tu
                       steps: int = 2000, figures: Optional[str] = None, oracle: bool = False,
                       log=print, rollouts: int = 1, perturb: float = 1e-3) -> Dict[str, Any]:
     """``rollouts`` > 1: that many rollouts per test trajectory, copy 0 from its frame 0 and the others
-    with N(0, ``perturb``^2) on the first positions (:func:`training.grid.perturbed_starts`: boids are
+    with N(0, ``perturb``^2) on the first positions (:func:`training.scores.perturbed_starts`: boids are
     chaotic, so one rollout per start says little); every copy is compared with its trajectory."""
-    from .grid import perturbed_starts
+    from .scores import perturbed_starts
     loaded = []
     if oracle:
         loaded.append((ORACLE, "our boids (published preset), dt 1/60", _Oracle()))
