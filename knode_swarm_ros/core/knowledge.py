@@ -16,6 +16,8 @@ All functions are TorchScript-compatible and work on a batch of neighbour matric
 """
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
 from torch import Tensor, nn
 
@@ -146,37 +148,40 @@ def continuous_wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: fl
     return _wall_pushes(position, box, gain, d0, min_distance, True)
 
 
+def _pair_potential(dist: Tensor, gain: Tensor, d0: float, continuous: bool,
+                    near: Optional[Tensor] = None) -> Tensor:
+    """U per distance (same shape): (lambda / 2) / d^2 for d <= d0 (paper) or
+    (lambda / 2) (1/d - 1/d0)^2 for d < d0 (continuous), 0 beyond and where ``near`` is False."""
+    within = dist < d0 if continuous else dist <= d0
+    near = within if near is None else within & near
+    d = dist.masked_fill(~near, 1.0)
+    u = 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2 if continuous else 0.5 * gain / d ** 2
+    return torch.where(near, u, torch.zeros_like(d))
+
+
+def _wall_potential(position: Tensor, box: float, gain: Tensor, d0: float, continuous: bool) -> Tensor:
+    """U ``[B]`` of both wall terms, summed over the faces."""
+    return (_pair_potential(box - position, gain, d0, continuous).sum(-1)
+            + _pair_potential(position + box, gain, d0, continuous).sum(-1))
+
+
 def continuous_collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
     """U ``[B]`` of :func:`continuous_collision_avoidance`."""
     dist = torch.linalg.vector_norm(Y[:, :1, :position_dim] - Y[:, 1:, :position_dim], dim=-1)   # [B, k-1]
-    near = (dist < d0) & (mask[:, 1:] > 0)
-    d = dist.masked_fill(~near, 1.0)
-    return torch.where(near, 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2, torch.zeros_like(d)).sum(-1)
+    return _pair_potential(dist, gain, d0, True, near=mask[:, 1:] > 0).sum(-1)
 
 
 def continuous_wall_potential(position: Tensor, box: float, gain: Tensor, d0: float) -> Tensor:
     """U ``[B]`` of :func:`continuous_wall_avoidance` for robots inside the box."""
-    total = torch.zeros(position.shape[0], dtype=position.dtype, device=position.device)
-    for dist in (box - position, position + box):
-        near = dist < d0
-        d = dist.masked_fill(~near, 1.0)
-        total = total + torch.where(near, 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2, torch.zeros_like(d)).sum(-1)
-    return total
+    return _wall_potential(position, box, gain, d0, True)
 
 
 def collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
     """U ``[B]`` of :func:`collision_avoidance` (for checks against autograd)."""
     _, dist = _closest_active(Y, mask, position_dim)
-    near = dist <= d0
-    d = dist.masked_fill(~near, 1.0)
-    return torch.where(near, 0.5 * gain / d ** 2, torch.zeros_like(d))
+    return _pair_potential(dist, gain, d0, False)
 
 
 def wall_potential(position: Tensor, box: float, gain: Tensor, d0: float) -> Tensor:
     """U ``[B]`` of :func:`wall_avoidance` for robots inside the box."""
-    total = torch.zeros(position.shape[0], dtype=position.dtype, device=position.device)
-    for dist in (box - position, position + box):
-        near = dist <= d0
-        d = dist.masked_fill(~near, 1.0)
-        total = total + torch.where(near, 0.5 * gain / d ** 2, torch.zeros_like(d)).sum(-1)
-    return total
+    return _wall_potential(position, box, gain, d0, False)
