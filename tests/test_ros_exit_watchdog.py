@@ -39,8 +39,6 @@ recorder.main()
 """
 
 
-
-
 def _recorder(tmp_path, step, deadline, *params):
     log_path = tmp_path / 'recorder.log'
     with open(log_path, 'wb') as log:
@@ -53,10 +51,6 @@ def _simulator(tmp_path, *params):
     with open(tmp_path / 'simulator.log', 'wb') as log:
         return start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', '-p', f'robots:={ROBOTS}',
                        '-p', 'wait_for_agents:=false', *params], log)
-
-
-
-
 
 
 def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tmp_path, ros_domain_id):
@@ -77,8 +71,7 @@ def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tm
     finally:
         for proc in (rec, sim):
             if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+                stop(proc, signal.SIGKILL)
         shm_cleanup(before)  # the recorder's participant was never destroyed
     got = load_trajectories(tmp_path / 'rec.npz')
     assert got.meta['interrupted'] is False
