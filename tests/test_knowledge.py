@@ -6,7 +6,6 @@ from knode_swarm_ros.core import AvoidanceGain, collision_avoidance, wall_avoida
 from knode_swarm_ros.core.knowledge import collision_potential, wall_potential
 
 
-
 @pytest.fixture(autouse=True)
 def float64():
     """These checks compare against autograd in double precision; restore the default after."""

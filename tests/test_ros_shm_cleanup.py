@@ -25,8 +25,6 @@ TRAFFIC = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', 
            '-p', 'publish_rate:=20.0']
 
 
-
-
 def _node_argv(node, tmp_path, policy):
     """``(argv, line it logs once it has heard every robot or runs)`` of ``node``."""
     heard = f'heard all {ROBOTS} robots: ready'
@@ -39,8 +37,6 @@ def _node_argv(node, tmp_path, policy):
             }[node]
     ready = {'simulator': ': running'}.get(node, heard)
     return ['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], ready
-
-
 
 
 def _held_while_running(proc) -> set:
@@ -68,8 +64,6 @@ def _port_mappers(held) -> dict:
     return found
 
 
-
-
 @pytest.mark.parametrize('node,sig', [('agent', signal.SIGINT), ('agent', signal.SIGTERM),
                                       ('agents', signal.SIGINT), ('simulator', signal.SIGTERM),
                                       ('recorder', signal.SIGINT)])
@@ -78,7 +72,7 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
     traffic = None
     if node != 'simulator':
         traffic = start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
-                         open(tmp_path / 'traffic.log', 'wb'))
+                        open(tmp_path / 'traffic.log', 'wb'))
     try:
         argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
         log_path = tmp_path / f'{node}.log'
