@@ -346,6 +346,9 @@ def test_selection_rolls_out_perturbed_copies_of_each_start(tmp_path):
     assert 0 < moved.max() < 1e-2 and not np.array_equal(z0[1], z0[2])  # positions moved ~1e-3, each copy its own
     assert three["rollouts"] == 3 and one["rollouts"] == 1 and three["avd_final_se"] >= 0
     assert "avd_final_se" not in one                                     # no spread from one rollout
+    # the log shows the medians the score's amd term compares (flock2d: mean avd + amd term + collisions)
+    amd_term = abs(three["amd_median"] - three["truth_amd_median"]) / three["truth_amd_median"]
+    assert three["min_distance"] >= 0.3 and three["score"] == pytest.approx(three["avd_final"] + amd_term, rel=1e-9)
     # three unperturbed copies are three equal rollouts: the score of one, a spread of 0
     assert same["score"] == pytest.approx(one["score"], rel=1e-12) and same["avd_final_se"] == pytest.approx(0.0, abs=1e-15)
 

@@ -306,6 +306,9 @@ class Trainer:
         spread_key = "avd_final" if self.spec.name == "flock2d" else "pod_kld"
         if len(m.get(spread_key, [])) > 1:
             out[spread_key + "_se"] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
+        # the medians are what the score's amd term compares; the means are kept for older logs
+        out["amd_median"] = float(np.median(m["amd_final"]))
+        out["truth_amd_median"] = float(np.median(m["truth_amd_final"]))
         for key in ("avd_final", "amd_final", "truth_amd_final", "truth_avd_final", "pod_kld", "min_distance"):
             if key in m:
                 out[key] = float(np.min(m[key]) if key == "min_distance" else np.mean(m[key]))
