@@ -269,6 +269,28 @@ def test_multi_step_training_resumes_bit_identically_and_starts_from_init(tmp_pa
         [json.loads(x)["train_loss"] for x in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.parametrize("scores, chosen", [((0.1, 0.5, 0.3, 0.2), 0), ((0.4, 0.5, 0.3, 0.35), 2)])
+def test_fine_tuning_keeps_the_starting_model_unless_an_epoch_rolls_out_better(tmp_path, monkeypatch, scores, chosen):
+    # selection scores scripted per call: epoch 0 (the starting model), then epochs 1-3
+    data = _data(tmp_path)
+    Trainer(normalise_config(_raw()), data, str(tmp_path / "init"), progress=False, log=lambda *a: None).finish()
+    cfg = normalise_config({**_raw(), "multistep": {**_raw()["multistep"], "init": str(tmp_path / "init")}})
+    run = Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
+    start = {k: v.clone() for k, v in run.policy.state_dict().items()}
+    states, calls = [], iter(scores)
+    monkeypatch.setattr(run, "select_metrics", lambda: (states.append({k: v.clone() for k, v in
+                                                                         run.policy.state_dict().items()}),
+                                                        {"score": next(calls)})[1])
+    summary = run.run()
+    assert len(states) == 4 and summary["selected"].startswith(f"best rollout score (epoch {chosen}")
+    exported = torch.jit.load(str(tmp_path / "run" / "policy.pt")).state_dict()
+    for key, value in states[chosen].items():
+        assert torch.equal(exported[key], value), key
+    for key, value in start.items():                    # epoch 0 is the starting model itself
+        assert torch.equal(states[0][key], value), key
+    assert chosen == 0 or any(not torch.equal(exported[k], start[k]) for k in start)
+
+
 def test_a_missing_init_policy_is_a_config_error_naming_the_field(tmp_path):
     data = _data(tmp_path)
     cfg = normalise_config({**_raw(), "multistep": {**_raw()["multistep"], "init": str(tmp_path / "nope")}})

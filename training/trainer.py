@@ -323,6 +323,8 @@ class Trainer:
         epochs = tc["epochs"]
         from tqdm import tqdm
         start = time.perf_counter() - self.elapsed
+        if self.epoch == 0 and self.best is None:
+            self._select_starting_model()
         while self.epoch < epochs:
             e = self.epoch + 1
             g = _epoch_generator(self.cfg["seed"], e)
@@ -387,6 +389,17 @@ class Trainer:
                 break
         return self.finish()
 
+    def _select_starting_model(self) -> None:
+        """Fine-tuning from ``multistep.init``: the starting model is the first candidate of the
+        selection (epoch 0), so the run never returns a model that rolls out worse than it started."""
+        if self.multi is None or self.cfg["multistep"]["init"] is None or not self.cfg["selection"]["every"]:
+            return
+        sel = self.select_metrics()
+        if sel is not None and math.isfinite(sel["score"]):
+            self.best = {"epoch": 0, "score": sel["score"], "metrics": sel,
+                         "state": copy.deepcopy(self.policy.state_dict())}
+            self.log("starting model (multistep.init) select " + " ".join(f"{k}={v:.3g}" for k, v in sel.items()))
+
     def _export_twin(self, path: str) -> Dict[str, Any]:
         """Write the ONNX twin of ``path`` (issue 15); a failed export is logged, never fatal:
         the TorchScript policy is the training artefact."""
@@ -415,7 +428,8 @@ class Trainer:
         chosen = "last"
         if self.best is not None and math.isfinite(self.best["score"]):
             self.policy.load_state_dict(self.best["state"])
-            chosen = f"best rollout score (epoch {self.best['epoch']})"
+            chosen = (f"best rollout score (epoch {self.best['epoch']})" if self.best["epoch"] else
+                      "best rollout score (epoch 0: the starting model, multistep.init)")
         meta = self.policy.metadata(dt=self.dt)
         meta["provenance"] = {
             "trainer": "training.train", "config": self.cfg, **self._data_provenance(), **self.code,
