@@ -311,12 +311,16 @@ def test_an_init_policy_with_another_law_is_a_config_error_naming_both(tmp_path,
         Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
 
 
-def test_config_file_of_the_shipped_multistep_run_is_valid():
+@pytest.mark.parametrize("name", ["train_flock2d_multistep.yaml", "train_boids3d_multistep.yaml"])
+def test_config_files_of_the_multistep_runs_are_valid(name):
     import os
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    with open(os.path.join(here, "config", "train_flock2d_multistep.yaml")) as fh:
+    with open(os.path.join(here, "config", name)) as fh:
         cfg = normalise_config(yaml.safe_load(fh))
+    with open(os.path.join(here, "config", name.replace("_multistep", ""))) as fh:
+        one_step = normalise_config(yaml.safe_load(fh))
     assert cfg["training"]["objective"] == "multi_step"
+    assert cfg["policy"] == one_step["policy"]          # the starting model must have the same law
     assert cfg["training"]["epochs"] == sum(cfg["multistep"]["epochs"])
 
 
