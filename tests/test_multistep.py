@@ -291,6 +291,22 @@ def test_fine_tuning_keeps_the_starting_model_unless_an_epoch_rolls_out_better(t
     assert chosen == 0 or any(not torch.equal(exported[k], start[k]) for k in start)
 
 
+def test_a_run_cut_short_by_max_minutes_scores_the_epoch_it_ends_with(tmp_path, monkeypatch):
+    # selection every 2 epochs, time up after epoch 1: epoch 1 must be a candidate, or the run would
+    # throw its training away and return the starting model
+    data = _data(tmp_path)
+    Trainer(normalise_config(_raw()), data, str(tmp_path / "init"), progress=False, log=lambda *a: None).finish()
+    raw = _raw(max_minutes=1e-9)
+    cfg = normalise_config({**raw, "selection": {**raw["selection"], "every": 2},
+                            "multistep": {**raw["multistep"], "init": str(tmp_path / "init")}})
+    run = Trainer(cfg, data, str(tmp_path / "run"), progress=False, log=lambda *a: None)
+    calls = iter((0.5, 0.3))
+    monkeypatch.setattr(run, "select_metrics", lambda: {"score": next(calls)})
+    summary = run.run()
+    assert summary["epochs"] == 1 and summary["selected"] == "best rollout score (epoch 1)"
+    assert summary["start_selection"] == {"score": 0.5}          # the starting model's score is kept
+
+
 def test_a_missing_init_policy_is_a_config_error_naming_the_field(tmp_path):
     data = _data(tmp_path)
     cfg = normalise_config({**_raw(), "multistep": {**_raw()["multistep"], "init": str(tmp_path / "nope")}})

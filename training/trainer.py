@@ -164,6 +164,7 @@ class Trainer:
         self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, _lr_lambda(cfg))
         self.epoch = 0                     # epochs completed
         self.best: Optional[Dict[str, Any]] = None
+        self.start_selection: Optional[Dict[str, Any]] = None   # the starting model's score (fine-tuning)
         self.ref_loss: Optional[float] = None
         self.elapsed = 0.0
         os.makedirs(out_dir, exist_ok=True)
@@ -228,6 +229,7 @@ class Trainer:
         self.opt.load_state_dict(ck["optimizer"])
         self.sched.load_state_dict(ck["scheduler"])
         self.epoch, self.best, self.ref_loss = ck["epoch"], ck["best"], ck["ref_loss"]
+        self.start_selection = ck.get("start_selection")
         self.elapsed = ck.get("elapsed", 0.0)
         # keep the metrics log consistent with the checkpoint (drop epochs after it)
         if os.path.exists(self.metrics_path):
@@ -239,7 +241,7 @@ class Trainer:
     def _save_checkpoint(self) -> None:
         ck = {"config": self.cfg, "model": self.policy.state_dict(), "optimizer": self.opt.state_dict(),
               "scheduler": self.sched.state_dict(), "epoch": self.epoch, "best": self.best,
-              "ref_loss": self.ref_loss, "elapsed": self.elapsed}
+              "ref_loss": self.ref_loss, "elapsed": self.elapsed, "start_selection": self.start_selection}
         atomic_write(self.ckpt_path, lambda tmp: torch.save(ck, tmp))
 
     # -- one epoch
@@ -364,7 +366,9 @@ class Trainer:
             epoch_s = time.perf_counter() - t0
             record: Dict[str, Any] = {"epoch": e, "train_loss": train_loss, "val_loss": self.val_loss(),
                                       "lr": lr, "epoch_s": round(epoch_s, 3)}
-            if sc["every"] and (e % sc["every"] == 0 or e == epochs):
+            # a run cut short by max_minutes scores its last epoch too: it is the one it ends with
+            out_of_time = tc["max_minutes"] is not None and time.perf_counter() - start > 60 * tc["max_minutes"]
+            if sc["every"] and (e % sc["every"] == 0 or e == epochs or out_of_time):
                 sel = self.select_metrics()
                 if sel is not None:
                     record["selection"] = sel
@@ -384,7 +388,7 @@ class Trainer:
             self.log(msg)
             if stop_after is not None and e >= stop_after:
                 return None
-            if tc["max_minutes"] is not None and self.elapsed > 60 * tc["max_minutes"]:
+            if out_of_time:
                 self.log(f"stopping after epoch {e}: training.max_minutes = {tc['max_minutes']} reached")
                 break
         return self.finish()
@@ -395,6 +399,7 @@ class Trainer:
         if self.multi is None or self.cfg["multistep"]["init"] is None or not self.cfg["selection"]["every"]:
             return
         sel = self.select_metrics()
+        self.start_selection = sel
         if sel is not None and math.isfinite(sel["score"]):
             self.best = {"epoch": 0, "score": sel["score"], "metrics": sel,
                          "state": copy.deepcopy(self.policy.state_dict())}
@@ -444,6 +449,6 @@ class Trainer:
                    "prep_seconds": round(self.prep_s, 1), "train_samples": len(self.train), "dropped_saturated": self.dropped,
                    "val_samples": 0 if self.val is None else len(self.val),
                    "best": None if self.best is None else {k: v for k, v in self.best.items() if k != "state"},
-                   "onnx": onnx_twin}
+                   "start_selection": self.start_selection, "onnx": onnx_twin}
         write_json(os.path.join(self.out, "summary.json"), summary)
         return summary
