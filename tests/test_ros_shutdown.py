@@ -7,7 +7,6 @@ that lands before the interpreter has run a line, the signal's default action). 
 signal at moments they do not control and assert that invariant; they wait only for polled
 conditions with generous deadlines. Timing figures (2 s, 50 of 50) are bench/bench_shutdown.py's.
 """
-import os
 import signal
 import subprocess
 import sys
@@ -17,11 +16,10 @@ import pytest
 
 import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
 
+from node_processes import WAIT_S, start, stop, wait_for  # noqa: E402
 from knode_swarm_ros.nodes.swarm.processes import catches_signal  # noqa: E402
 
 pytestmark = pytest.mark.ros
-
-WAIT_S = 120  # generous: only a hang fails
 
 
 def _command(node, tmp_path, untrained_policies):
@@ -36,22 +34,11 @@ def _command(node, tmp_path, untrained_policies):
 
 
 def _start(node, args, log):
-    env = dict(os.environ, PYTHONUNBUFFERED='1')
-    return subprocess.Popen([sys.executable, '-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args],
-                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    return start(['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], log)
 
 
 def _stop(proc, sig, log_path):
-    proc.send_signal(sig)
-    try:
-        rc = proc.wait(timeout=WAIT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    return rc, log_path.read_text(errors='replace')
-
-
+    return stop(proc, sig), log_path.read_text(errors='replace')
 
 
 @pytest.mark.parametrize('node', ['agent', 'agents', 'simulator', 'recorder'])
@@ -79,10 +66,7 @@ def test_a_signal_at_any_moment_gives_a_clean_exit(node, tmp_path, untrained_pol
         log_path = tmp_path / f'{node}_running_{sig}.log'
         with open(log_path, 'wb') as log:
             proc = _start(node, args, log)
-        deadline = time.monotonic() + WAIT_S
-        while time.monotonic() < deadline and proc.poll() is None and running not in log_path.read_text():
-            time.sleep(0.05)
-        assert proc.poll() is None, log_path.read_text()
+        wait_for(proc, log_path, running)
         rc, text = _stop(proc, sig, log_path)
         assert rc == 0 and 'Traceback' not in text and 'Aborted' not in text, f'rc {rc}\n{text}'
 
