@@ -81,6 +81,11 @@ def _lr_lambda(cfg: Dict[str, Any]):
     return fn
 
 
+def _selection_text(sel: Dict[str, Any]) -> str:
+    """The log's form of a selection record: ``select score=... rollouts=...``."""
+    return "select " + " ".join(f"{k}={v:.3g}" for k, v in sel.items())
+
+
 class Trainer:
     """All training state; :meth:`run` trains to the configured epoch count.
 
@@ -384,7 +389,7 @@ class Trainer:
             self._save_checkpoint()
             msg = f"epoch {e}/{epochs} train {train_loss:.4g} val {record['val_loss'] if record['val_loss'] is None else format(record['val_loss'], '.4g')} lr {lr:.2e} ({epoch_s:.1f}s)"
             if "selection" in record:
-                msg += " select " + " ".join(f"{k}={v:.3g}" for k, v in record["selection"].items())
+                msg += " " + _selection_text(record["selection"])
             self.log(msg)
             if stop_after is not None and e >= stop_after:
                 return None
@@ -403,7 +408,7 @@ class Trainer:
         if sel is not None and math.isfinite(sel["score"]):
             self.best = {"epoch": 0, "score": sel["score"], "metrics": sel,
                          "state": copy.deepcopy(self.policy.state_dict())}
-            self.log("starting model (multistep.init) select " + " ".join(f"{k}={v:.3g}" for k, v in sel.items()))
+            self.log("starting model (multistep.init) " + _selection_text(sel))
 
     def _export_twin(self, path: str) -> Dict[str, Any]:
         """Write the ONNX twin of ``path`` (issue 15); a failed export is logged, never fatal:
