@@ -12,6 +12,7 @@ exact CPU build; requirements.txt pins all of them for a virtual environment. A 
 that runs only the ONNX twins needs the ``robot`` extra (onnxruntime) and no torch
 (requirements-robot.txt pins that set).
 """
+
 import os
 
 from setuptools import find_packages, setup
@@ -29,7 +30,8 @@ def _config_data_files():
         files = sorted(
             os.path.relpath(os.path.join(dirpath, f), HERE)
             for f in filenames
-            if not f.startswith('.') and not f.endswith(('~', '.pyc')))
+            if not f.startswith('.') and not f.endswith(('~', '.pyc'))
+        )
         if files:
             rel = os.path.relpath(dirpath, HERE)
             entries.append((os.path.join('share', PACKAGE_NAME, rel), files))
@@ -44,19 +46,23 @@ setup(
     maintainer='knode_swarm_ros maintainers',
     maintainer_email='maintainers@knode-swarm.dev',
     python_requires='>=3.10',
-    packages=find_packages(
-        exclude=['tests', 'tests.*', 'training', 'training.*', 'bench', 'bench.*']),
+    packages=find_packages(exclude=['tests', 'tests.*', 'training', 'training.*', 'bench', 'bench.*']),
     # Shipped, pretrained policies: found at run time through importlib.resources.
     package_data={PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),
-    ] + _config_data_files(),
+    ]
+    + _config_data_files(),
     install_requires=['numpy', 'pyyaml'],
     # bag: reading and writing bags (knode_swarm_ros.bag: rosbags is pure Python, no ROS needed);
     # robot: the torch-free runtime (onnxruntime); torch: the TorchScript runtime and training.
-    extras_require={'test': ['pytest'], 'bag': ['rosbags==0.11.9'], 'robot': ['onnxruntime==1.32.0'],
-                    'torch': ['torch==2.13.0']},
+    extras_require={
+        'test': ['pytest'],
+        'bag': ['rosbags==0.11.9'],
+        'robot': ['onnxruntime==1.32.0'],
+        'torch': ['torch==2.13.0'],
+    },
     zip_safe=False,
     entry_points={
         'console_scripts': [

@@ -9,6 +9,7 @@ and the private and resident memory (``/proc/PID/smaps_rollup``) of an agent pro
 robot once it has loaded its policy, against the same figures of a bare ``python -c 'import
 rclpy'`` process as the baseline.
 """
+
 from __future__ import annotations
 
 import datetime
@@ -46,8 +47,13 @@ def _memory(pid: int):
 
 
 def _measure(cmd, ready, log_path):
-    env = dict(os.environ, PYTHONPATH=str(REPO), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID', '99'), OMP_NUM_THREADS='1')
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(REPO),
+        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+        ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID', '99'),
+        OMP_NUM_THREADS='1',
+    )
     with open(log_path, 'wb') as log:
         proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
@@ -65,19 +71,32 @@ def main() -> int:
     prefix = Path(sys.prefix)
     site = Path(next(p for p in sys.path if p.endswith('site-packages')))
     import torch
+
     nvidia = [p.name for p in site.iterdir() if p.name.lower().startswith('nvidia')]
-    print(f'# bench_install {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, load '
-          f'{os.getloadavg()[0]:.1f}); command: {sys.executable} {" ".join(sys.argv)}')
-    print(f'venv {prefix}: {_du(prefix) / 2**30:.2f} GiB; torch {torch.__version__}: '
-          f'{_du(Path(torch.__file__).parent) / 2**20:.0f} MiB; nvidia-* entries in site-packages: {len(nvidia)}')
+    print(
+        f'# bench_install {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, load '
+        f'{os.getloadavg()[0]:.1f}); command: {sys.executable} {" ".join(sys.argv)}'
+    )
+    print(
+        f'venv {prefix}: {_du(prefix) / 2**30:.2f} GiB; torch {torch.__version__}: '
+        f'{_du(Path(torch.__file__).parent) / 2**20:.0f} MiB; nvidia-* entries in site-packages: {len(nvidia)}'
+    )
     tmp = Path(os.environ.get('TMPDIR', '/tmp'))
-    base = _measure([sys.executable, '-c', 'import rclpy, time; print("ready", flush=True); time.sleep(600)'],
-                    'ready', tmp / 'bench_install_base.log')
-    agent = _measure([sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=0',
-                      '-p', 'robots:=1'], 'publishing', tmp / 'bench_install_agent.log')
+    base = _measure(
+        [sys.executable, '-c', 'import rclpy, time; print("ready", flush=True); time.sleep(600)'],
+        'ready',
+        tmp / 'bench_install_base.log',
+    )
+    agent = _measure(
+        [sys.executable, '-m', 'knode_swarm_ros.nodes.agent', '--ros-args', '-p', 'id:=0', '-p', 'robots:=1'],
+        'publishing',
+        tmp / 'bench_install_agent.log',
+    )
     print(f'baseline python + rclpy: private {base[0]:.0f} MiB, RSS {base[1]:.0f} MiB')
-    print(f'agent (1 robot, shipped flock2d policy): private {agent[0]:.0f} MiB, RSS {agent[1]:.0f} MiB '
-          f'({agent[0] / max(base[0], 1e-9):.1f}x the baseline private memory)')
+    print(
+        f'agent (1 robot, shipped flock2d policy): private {agent[0]:.0f} MiB, RSS {agent[1]:.0f} MiB '
+        f'({agent[0] / max(base[0], 1e-9):.1f}x the baseline private memory)'
+    )
     return 0
 
 

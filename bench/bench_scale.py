@@ -21,7 +21,7 @@ Figures, each against a baseline of the same run:
   runs only up to ``--lone-max`` robots (an agent process holds about 330 MB);
 * realtime: hosted at 20 Hz: missed commands (1 - distinct (robot, step) commands the simulator
   received / robots x state publications), p50/p99 latency, PSS;
-* multihost (root): three network namespaces on a bridge (:mod:`knode_swarm_ros.nodes.netns`),
+* multihost (root): three network namespaces on a bridge (:mod:`knode_swarm_ros.nodes.swarm.netns`),
   simulator and recorder in the first, hosting agent processes spread over the three, subnet
   discovery over UDP: lockstep steps/s and parity with core.rollout, realtime misses and latency,
   against the same runs on one host with localhost discovery;
@@ -36,6 +36,7 @@ from /proc/<pid>/smaps_rollup. The full measurement (about 60 to 90 minutes on a
 machine): ``python bench/bench_scale.py --robots 10,20,50,100,200 --steps 2000 --seconds 60
 --lone-max 50``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -62,13 +63,16 @@ from bench_ros import machine  # noqa: E402
 def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     """Per robot and step, as the nodes call the logic: after every state a poll."""
     import gc
+
     import torch
+
     torch.set_num_threads(1)
     from knode_swarm_ros.core import load_policy
-    from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-    from knode_swarm_ros.nodes.common import stamp_ns
-    from knode_swarm_ros.nodes.hosted_logic import HostedAgents
-    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+    from knode_swarm_ros.logic.agent.hosted import HostedAgents
+    from knode_swarm_ros.logic.common import stamp_ns
+    from knode_swarm_ros.logic.simulator.swarm_sim import initial_state
+
     policy = load_policy(policy_path)
     z0, swarm = initial_state(policy.scenario, n, seed=0)
     frames = [z0] + [swarm.step()[0] for _ in range(steps)]
@@ -83,8 +87,11 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     for s, frame in enumerate(frames):
         ns = stamp_ns(s, policy.dt)
         got = 0
-        for logic, file_acc, poll_acc, robots in ((host, filing, poll, n), (lone, lone_filing, lone_poll, n),
-                                                  (lone10, None, lone10_poll, small)):
+        for logic, file_acc, poll_acc, robots in (
+            (host, filing, poll, n),
+            (lone, lone_filing, lone_poll, n),
+            (lone10, None, lone10_poll, small),
+        ):
             t_file = t_poll = 0.0
             for r in range(robots):
                 t0 = clock()
@@ -108,10 +115,24 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
         policy(Y, mask)
         bare.append((clock() - t) / n)
     skip = min(5, len(frames) // 4)
-    q = lambda xs: (float(np.percentile(np.array(xs[skip:]) * 1e6, 50)), float(np.percentile(np.array(xs[skip:]) * 1e6, 99)))
-    return {'robots': n, 'steps': len(frames), 'hosted_y_and_policy_share_us': q(poll),
-            'hosted_filing_per_robot_us': q(filing), 'lone_poll_us': q(lone_poll), 'lone_filing_us': q(lone_filing),
-            'lone10_poll_us': q(lone10_poll), 'bare_policy_share_us': q(bare), 'policy_calls': host.calls}
+
+    def q(xs):
+        return (
+            float(np.percentile(np.array(xs[skip:]) * 1e6, 50)),
+            float(np.percentile(np.array(xs[skip:]) * 1e6, 99)),
+        )
+
+    return {
+        'robots': n,
+        'steps': len(frames),
+        'hosted_y_and_policy_share_us': q(poll),
+        'hosted_filing_per_robot_us': q(filing),
+        'lone_poll_us': q(lone_poll),
+        'lone_filing_us': q(lone_filing),
+        'lone10_poll_us': q(lone10_poll),
+        'bare_policy_share_us': q(bare),
+        'policy_calls': host.calls,
+    }
 
 
 # --- runs ------------------------------------------------------------------------------------
@@ -131,8 +152,16 @@ RUNTIME = 'torchscript'
 
 def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
     """The launcher with ``args``; PSS of all its processes sampled twice while running."""
-    cmd = [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(log_dir), '--no-figure',
-           '--quiet', *map(str, args)]
+    cmd = [
+        sys.executable,
+        '-m',
+        'knode_swarm_ros.nodes.swarm',
+        '--log-dir',
+        str(log_dir),
+        '--no-figure',
+        '--quiet',
+        *map(str, args),
+    ]
     if DOMAIN_ID is not None:  # concurrent benchmarks on one machine must not share a domain
         cmd += ['--domain-id', str(DOMAIN_ID)]
     cmd += ['--policy-runtime', RUNTIME]
@@ -155,8 +184,12 @@ def run_swarm(args: list, log_dir: Path, timeout: float) -> dict:
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-    result = {'rc': proc.returncode, 'wall_s': time.monotonic() - t0, 'pss_mb': max(pss) if pss else None,
-              'command': shlex.join(cmd)}
+    result = {
+        'rc': proc.returncode,
+        'wall_s': time.monotonic() - t0,
+        'pss_mb': max(pss) if pss else None,
+        'command': shlex.join(cmd),
+    }
     try:
         result['report'] = json.loads((log_dir / 'simulator.json').read_text())
     except (OSError, ValueError):
@@ -175,9 +208,16 @@ def _lockstep_wait(a) -> list:
 def _row(r: dict) -> dict:
     rep = r['report']
     lat = rep.get('latency_ms') or {}
-    return {'steps_per_s': rep.get('steps_per_s'), 'startup_s': rep.get('startup_s'), 'p50': lat.get('p50'),
-            'p99': lat.get('p99'), 'pss_mb': r['pss_mb'], 'rc': r['rc'], 'wall_s': r['wall_s'],
-            'lost': rep.get('lost')}
+    return {
+        'steps_per_s': rep.get('steps_per_s'),
+        'startup_s': rep.get('startup_s'),
+        'p50': lat.get('p50'),
+        'p99': lat.get('p99'),
+        'pss_mb': r['pss_mb'],
+        'rc': r['rc'],
+        'wall_s': r['wall_s'],
+        'lost': rep.get('lost'),
+    }
 
 
 def _fmt(x, spec='8.1f'):
@@ -201,10 +241,12 @@ def _ratio(a, b):
 # --- quality ---------------------------------------------------------------------------------
 def quality(record: Path, policy_path: str) -> dict:
     import torch
+
     torch.set_num_threads(1)
     from knode_swarm_ros.core import load_policy, load_trajectories, rollout
-    from knode_swarm_ros.nodes.recorder_logic import swarm_metrics
-    from knode_swarm_ros.nodes.simulator_logic import make_ground_truth
+    from knode_swarm_ros.logic.recorder import swarm_metrics
+    from knode_swarm_ros.logic.simulator.swarm_sim import make_ground_truth
+
     data = load_trajectories(record)
     states = data.states[0]
     steps = states.shape[0] - 1
@@ -216,21 +258,35 @@ def quality(record: Path, policy_path: str) -> dict:
     def metrics(traj):
         m = np.array([swarm_metrics(f, data.scenario) for f in traj])
         tail = max(1, len(m) // 10)
-        return {'avd_end': float(m[-1, 0]), 'amd_end': float(m[-1, 1]), 'avd_last10': float(m[-tail:, 0].mean()),
-                'amd_last10': float(m[-tail:, 1].mean())}
-    return {'robots': int(states.shape[1]), 'steps': steps, 'max_diff_vs_rollout': float(np.abs(ref - states).max()),
-            'bit_for_bit': bool(np.array_equal(ref, states)), 'ros': metrics(states), 'rollout': metrics(ref),
-            'ground_truth': metrics(gt)}
+        return {
+            'avd_end': float(m[-1, 0]),
+            'amd_end': float(m[-1, 1]),
+            'avd_last10': float(m[-tail:, 0].mean()),
+            'amd_last10': float(m[-tail:, 1].mean()),
+        }
+
+    return {
+        'robots': int(states.shape[1]),
+        'steps': steps,
+        'max_diff_vs_rollout': float(np.abs(ref - states).max()),
+        'bit_for_bit': bool(np.array_equal(ref, states)),
+        'ros': metrics(states),
+        'rollout': metrics(ref),
+        'ground_truth': metrics(gt),
+    }
 
 
 # --- multihost --------------------------------------------------------------------------------
 def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
-    from knode_swarm_ros.nodes import netns
-    from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
+    from knode_swarm_ros.nodes.swarm import netns
+
     out = {}
-    print(f'\n## three hosts (network namespaces on a bridge, subnet discovery, UDP) vs one host (localhost)')
-    print(f'{"robots":>6} {"where":>6} {"mode":>9} {"steps/s":>8} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} '
-          f'{"parity":>7} rc', flush=True)
+    print('\n## three hosts (network namespaces on a bridge, subnet discovery, UDP) vs one host (localhost)')
+    print(
+        f'{"robots":>6} {"where":>6} {"mode":>9} {"steps/s":>8} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} '
+        f'{"parity":>7} rc',
+        flush=True,
+    )
     try:
         with netns.virtual_hosts(3) as hosts:
             spaces = ','.join(h.name for h in hosts)
@@ -239,8 +295,27 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
                 for where in ('1 host', '3 hosts'):
                     for mode, steps in (('lockstep', a.steps), ('realtime', int(round(a.seconds / 0.01)))):
                         tag = f'multihost_{n}_{where[0]}_{mode}'
-                        args = ['--policy', policy, '--robots', n, '--steps', steps, '--mode', mode, '--rate', 20,
-                                '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *(_lockstep_wait(a) if mode == 'lockstep' else []), '--record', tmp / f'{tag}.npz']
+                        args = [
+                            '--policy',
+                            policy,
+                            '--robots',
+                            n,
+                            '--steps',
+                            steps,
+                            '--mode',
+                            mode,
+                            '--rate',
+                            20,
+                            '--agents-per-process',
+                            k,
+                            '--startup-timeout',
+                            900,
+                            '--lockstep-timeout',
+                            a.lockstep_timeout,
+                            *(_lockstep_wait(a) if mode == 'lockstep' else []),
+                            '--record',
+                            tmp / f'{tag}.npz',
+                        ]
                         if where == '3 hosts':
                             args += ['--netns', spaces]
                         r = run_swarm(args, tmp / tag, a.timeout)
@@ -255,9 +330,11 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
                             got = _commanded(c)
                             missed = 100.0 * max(0, expected - got) / expected if expected else None
                         out[tag] = {'report': rep, 'parity': parity, 'missed_pct': missed, 'rc': r['rc']}
-                        print(f'{n:6d} {where:>6} {mode:>9} {_fmt(rep.get("steps_per_s"))} {_fmt(missed, "9.2f")} '
-                              f'{_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} {str(parity):>7} {r["rc"]}',
-                              flush=True)
+                        print(
+                            f'{n:6d} {where:>6} {mode:>9} {_fmt(rep.get("steps_per_s"))} {_fmt(missed, "9.2f")} '
+                            f'{_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} {str(parity):>7} {r["rc"]}',
+                            flush=True,
+                        )
                         if r['rc'] != 0:
                             print(r.get('output', ''))
     except netns.NetnsUnavailable as exc:
@@ -268,23 +345,41 @@ def bench_multihost(policy: str, counts, a, tmp: Path) -> dict:
 # --- main ------------------------------------------------------------------------------------
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    p.add_argument('--only', choices=('tick', 'lockstep', 'realtime', 'quality', 'multihost'), action='append')
+    p.add_argument(
+        '--only', choices=('tick', 'lockstep', 'realtime', 'quality', 'multihost'), action='append'
+    )
     p.add_argument('--robots', default='10,20,50,100,200', help='robot counts, comma-separated')
     p.add_argument('--steps', type=int, default=2000, help='lockstep / quality steps (default 2000)')
     p.add_argument('--seconds', type=float, default=60.0, help='realtime: simulated seconds (default 60)')
     p.add_argument('--tick-robots', type=int, default=100)
     p.add_argument('--lone-max', type=int, default=20, help='largest swarm run with one process per robot')
-    p.add_argument('--agents-per-process', type=int, default=0, help='hosted layout: K (0: the default split)')
+    p.add_argument(
+        '--agents-per-process', type=int, default=0, help='hosted layout: K (0: the default split)'
+    )
     p.add_argument('--timeout', type=float, default=1800.0, help='wall seconds per run')
-    p.add_argument('--lockstep-timeout', type=float, default=600.0,
-                   help="the simulator's wait for a late agent before holding its robot (the launcher's default, 5 s, "
-                   'drops agents that a loaded machine delays; a run with held robots is not a valid figure)')
-    p.add_argument('--state-timeout', type=float, default=60.0,
-                   help="agents' state_timeout in lockstep runs (default 60 s: see _lockstep_wait)")
-    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of every run (default: the launcher draws one)')
-    p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='torchscript',
-                   help="the agents' runtime (default torchscript: core.rollout runs torch, so a lockstep recording "
-                   'equals it bit for bit only on TorchScript; the ONNX twin agrees to about 1e-6)')
+    p.add_argument(
+        '--lockstep-timeout',
+        type=float,
+        default=600.0,
+        help="the simulator's wait for a late agent before holding its robot (the launcher's default, 5 s, "
+        'drops agents that a loaded machine delays; a run with held robots is not a valid figure)',
+    )
+    p.add_argument(
+        '--state-timeout',
+        type=float,
+        default=60.0,
+        help="agents' state_timeout in lockstep runs (default 60 s: see _lockstep_wait)",
+    )
+    p.add_argument(
+        '--domain-id', type=int, help='ROS_DOMAIN_ID of every run (default: the launcher draws one)'
+    )
+    p.add_argument(
+        '--policy-runtime',
+        choices=('auto', 'torchscript', 'onnxruntime'),
+        default='torchscript',
+        help="the agents' runtime (default torchscript: core.rollout runs torch, so a lockstep recording "
+        'equals it bit for bit only on TorchScript; the ONNX twin agrees to about 1e-6)',
+    )
     p.add_argument('--policy')
     p.add_argument('--out', help='results JSON (default: in the temporary folder)')
     a = p.parse_args(argv)
@@ -293,6 +388,7 @@ def main(argv=None) -> int:
     only = set(a.only or ('tick', 'lockstep', 'realtime', 'quality'))
     counts = [int(x) for x in a.robots.split(',') if x]
     from knode_swarm_ros.core.policy_io import shipped_policy_path
+
     policy = a.policy or str(shipped_policy_path('flock2d'))
     print(f'# bench_scale, {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}')
     print(f'# command: {shlex.join([sys.executable, *sys.argv])}')
@@ -303,66 +399,128 @@ def main(argv=None) -> int:
     if 'tick' in only:
         t = bench_tick(policy, a.tick_robots, 60)
         results['tick'] = t
-        print(f'\n## per robot and step inside a hosting process of {t["robots"]} robots (CPU us of the thread, p50 / p99; '
-              f'{t["policy_calls"]} policy calls for {t["steps"]} steps)')
-        for key, label in (('hosted_y_and_policy_share_us', 'hosted: Y_i + share of the batched call'),
-                           ('hosted_filing_per_robot_us', 'hosted: filing the step\'s states, per robot'),
-                           ('lone_poll_us', f'lone agent: Y_i + its own call (batch {t["robots"]})'),
-                           ('lone_filing_us', f'lone agent: filing the step\'s {t["robots"]} states'),
-                           ('lone10_poll_us', 'lone agent of 10 robots: Y_i + its own call'),
-                           ('bare_policy_share_us', 'bare policy forward, share of a batch')):
+        print(
+            f'\n## per robot and step inside a hosting process of {t["robots"]} robots (CPU us of the thread, p50 / p99; '
+            f'{t["policy_calls"]} policy calls for {t["steps"]} steps)'
+        )
+        for key, label in (
+            ('hosted_y_and_policy_share_us', 'hosted: Y_i + share of the batched call'),
+            ('hosted_filing_per_robot_us', "hosted: filing the step's states, per robot"),
+            ('lone_poll_us', f'lone agent: Y_i + its own call (batch {t["robots"]})'),
+            ('lone_filing_us', f"lone agent: filing the step's {t['robots']} states"),
+            ('lone10_poll_us', 'lone agent of 10 robots: Y_i + its own call'),
+            ('bare_policy_share_us', 'bare policy forward, share of a batch'),
+        ):
             print(f'{label:48s} {t[key][0]:9.1f} {t[key][1]:9.1f}')
         h = t['hosted_y_and_policy_share_us'][0]
-        print(f'ratio hosted / lone at {t["robots"]} robots (p50): {h / t["lone_poll_us"][0]:.3f}; '
-              f'hosted / lone at 10 robots: {h / t["lone10_poll_us"][0]:.3f}; '
-              f'hosted per robot incl. filing: {h + t["hosted_filing_per_robot_us"][0]:.1f} us (goal <= 50 us for '
-              'Y_i + share of the call)', flush=True)
+        print(
+            f'ratio hosted / lone at {t["robots"]} robots (p50): {h / t["lone_poll_us"][0]:.3f}; '
+            f'hosted / lone at 10 robots: {h / t["lone10_poll_us"][0]:.3f}; '
+            f'hosted per robot incl. filing: {h + t["hosted_filing_per_robot_us"][0]:.1f} us (goal <= 50 us for '
+            'Y_i + share of the call)',
+            flush=True,
+        )
     if 'lockstep' in only:
         print(f'\n## lockstep, {a.steps} steps (steps/s after startup; PSS of all processes while running)')
-        print(f'{"robots":>6} {"layout":>7} {"procs":>5} {"steps/s":>8} {"startup s":>9} {"p50 ms":>8} {"p99 ms":>8} '
-              f'{"PSS MB":>8} rc', flush=True)
+        print(
+            f'{"robots":>6} {"layout":>7} {"procs":>5} {"steps/s":>8} {"startup s":>9} {"p50 ms":>8} {"p99 ms":>8} '
+            f'{"PSS MB":>8} rc',
+            flush=True,
+        )
         from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process
+
         for n in counts:
             rows = {}
             for layout in ('lone', 'hosted'):
                 k = 1 if layout == 'lone' else resolve_agents_per_process(a.agents_per_process, n)
                 if layout == 'lone' and n > a.lone_max:
-                    print(f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.18 * n:.0f} GB)')  # 3.6 GB for 20
+                    print(
+                        f'{n:6d} {layout:>7} {n:5d}  not run (--lone-max {a.lone_max}: about {0.18 * n:.0f} GB)'
+                    )  # 3.6 GB for 20
                     continue
                 if layout == 'hosted' and k == 1:
                     k = max(2, -(-n // 2))  # the default is one process per robot here: host anyway
-                r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *_lockstep_wait(a),
-                               '--record', tmp / f'lockstep_{n}_{layout}.npz'], tmp / f'lockstep_{n}_{layout}', a.timeout)
+                r = run_swarm(
+                    [
+                        '--policy',
+                        policy,
+                        '--robots',
+                        n,
+                        '--steps',
+                        a.steps,
+                        '--mode',
+                        'lockstep',
+                        '--agents-per-process',
+                        k,
+                        '--startup-timeout',
+                        900,
+                        '--lockstep-timeout',
+                        a.lockstep_timeout,
+                        *_lockstep_wait(a),
+                        '--record',
+                        tmp / f'lockstep_{n}_{layout}.npz',
+                    ],
+                    tmp / f'lockstep_{n}_{layout}',
+                    a.timeout,
+                )
                 rows[layout] = row = _row(r)
                 procs = -(-n // k)
-                print(f'{n:6d} {layout:>7} {procs:5d} {_fmt(row["steps_per_s"])} {_fmt(row["startup_s"], "9.1f")} '
-                      f'{_fmt(row["p50"], "8.2f")} {_fmt(row["p99"], "8.2f")} {_fmt(row["pss_mb"], "8.0f")} {row["rc"]}'
-                      + (f'  INVALID: robots held {row["lost"]}' if row['lost'] else ''),
-                      flush=True)
+                print(
+                    f'{n:6d} {layout:>7} {procs:5d} {_fmt(row["steps_per_s"])} {_fmt(row["startup_s"], "9.1f")} '
+                    f'{_fmt(row["p50"], "8.2f")} {_fmt(row["p99"], "8.2f")} {_fmt(row["pss_mb"], "8.0f")} {row["rc"]}'
+                    + (f'  INVALID: robots held {row["lost"]}' if row['lost'] else ''),
+                    flush=True,
+                )
                 if r['rc'] != 0:
                     print(r.get('output', ''))
             if 'lone' in rows and 'hosted' in rows:
                 lo, ho = rows['lone'], rows['hosted']
-                print(f'{n:6d}   ratio hosted/lone: steps/s {_fmt(_ratio(ho["steps_per_s"], lo["steps_per_s"]), "5.2f")}, '
-                      f'p99 {_fmt(_ratio(ho["p99"], lo["p99"]), "5.2f")}, PSS {_fmt(_ratio(ho["pss_mb"], lo["pss_mb"]), "5.2f")}',
-                      flush=True)
+                print(
+                    f'{n:6d}   ratio hosted/lone: steps/s {_fmt(_ratio(ho["steps_per_s"], lo["steps_per_s"]), "5.2f")}, '
+                    f'p99 {_fmt(_ratio(ho["p99"], lo["p99"]), "5.2f")}, PSS {_fmt(_ratio(ho["pss_mb"], lo["pss_mb"]), "5.2f")}',
+                    flush=True,
+                )
             results[f'lockstep_{n}'] = rows
     if 'realtime' in only:
         # As `swarm --mode realtime` deploys: the policy trained for the control rate (issue 19)
         from knode_swarm_ros.core.policy_meta import read_pt_meta
-        from knode_swarm_ros.nodes.control_period import shipped_policy_for_rate
+        from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
+
         rt_policy = a.policy or str(shipped_policy_for_rate('flock2d', 20.0)[0])
         rt_dt = float(read_pt_meta(rt_policy)['dt'])
-        print(f'\n## realtime at 20 Hz, {a.seconds:g} s simulated, hosted, policy {rt_policy} (dt {rt_dt:g} s)')
+        print(
+            f'\n## realtime at 20 Hz, {a.seconds:g} s simulated, hosted, policy {rt_policy} (dt {rt_dt:g} s)'
+        )
         print(f'{"robots":>6} {"missed %":>9} {"p50 ms":>8} {"p99 ms":>8} {"PSS MB":>8} rc', flush=True)
         for n in counts:
             from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
+
             k = resolve(a.agents_per_process, n)
             steps = int(round(a.seconds / rt_dt))
-            r = run_swarm(['--policy', rt_policy, '--robots', n, '--steps', steps, '--mode', 'realtime', '--rate', 20,
-                           '--agents-per-process', k, '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout,
-                           '--record', tmp / f'realtime_{n}.npz'], tmp / f'realtime_{n}', a.timeout)
+            r = run_swarm(
+                [
+                    '--policy',
+                    rt_policy,
+                    '--robots',
+                    n,
+                    '--steps',
+                    steps,
+                    '--mode',
+                    'realtime',
+                    '--rate',
+                    20,
+                    '--agents-per-process',
+                    k,
+                    '--startup-timeout',
+                    900,
+                    '--lockstep-timeout',
+                    a.lockstep_timeout,
+                    '--record',
+                    tmp / f'realtime_{n}.npz',
+                ],
+                tmp / f'realtime_{n}',
+                a.timeout,
+            )
             rep = r['report']
             c = rep.get('counters', {})
             # one command per robot and control tick (20 Hz = every state publication) is expected
@@ -371,8 +529,11 @@ def main(argv=None) -> int:
             lat = rep.get('latency_ms') or {}
             missed = 100.0 * max(0, expected - got) / expected if expected else None
             results[f'realtime_{n}'] = {'report': rep, 'pss_mb': r['pss_mb'], 'missed_pct': missed}
-            print(f'{n:6d} {_fmt(missed, "9.2f")} {_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} '
-                  f'{_fmt(r["pss_mb"], "8.0f")} {r["rc"]}  counters {json.dumps(c)}', flush=True)
+            print(
+                f'{n:6d} {_fmt(missed, "9.2f")} {_fmt(lat.get("p50"), "8.2f")} {_fmt(lat.get("p99"), "8.2f")} '
+                f'{_fmt(r["pss_mb"], "8.0f")} {r["rc"]}  counters {json.dumps(c)}',
+                flush=True,
+            )
     if 'multihost' in only:
         results['multihost'] = bench_multihost(policy, counts, a, tmp)
     if 'quality' in only:
@@ -380,29 +541,60 @@ def main(argv=None) -> int:
             record = tmp / f'lockstep_{n}_hosted.npz'
             if not record.exists():
                 from knode_swarm_ros.nodes.swarm.hosting import resolve_agents_per_process as resolve
-                r = run_swarm(['--policy', policy, '--robots', n, '--steps', a.steps, '--mode', 'lockstep',
-                               '--agents-per-process', resolve(a.agents_per_process, n), '--startup-timeout', 900, '--lockstep-timeout', a.lockstep_timeout, *_lockstep_wait(a),
-                               '--record', record], tmp / f'quality_{n}', a.timeout)
+
+                r = run_swarm(
+                    [
+                        '--policy',
+                        policy,
+                        '--robots',
+                        n,
+                        '--steps',
+                        a.steps,
+                        '--mode',
+                        'lockstep',
+                        '--agents-per-process',
+                        resolve(a.agents_per_process, n),
+                        '--startup-timeout',
+                        900,
+                        '--lockstep-timeout',
+                        a.lockstep_timeout,
+                        *_lockstep_wait(a),
+                        '--record',
+                        record,
+                    ],
+                    tmp / f'quality_{n}',
+                    a.timeout,
+                )
                 row = _row(r)
                 results[f'quality_run_{n}'] = row
-                print(f'\n## lockstep run for the quality figures: {n} robots, {a.steps} steps, hosted: '
-                      f'{_fmt(row["steps_per_s"], ".1f")} steps/s after {_fmt(row["startup_s"], ".1f")} s of startup, '
-                      f'latency p50 {_fmt(row["p50"], ".2f")} / p99 {_fmt(row["p99"], ".2f")} ms, PSS of all processes '
-                      f'{_fmt(row["pss_mb"], ".0f")} MB, wall {row["wall_s"]:.0f} s, rc {r["rc"]}, robots held: '
-                      f'{row["lost"]}', flush=True)
+                print(
+                    f'\n## lockstep run for the quality figures: {n} robots, {a.steps} steps, hosted: '
+                    f'{_fmt(row["steps_per_s"], ".1f")} steps/s after {_fmt(row["startup_s"], ".1f")} s of startup, '
+                    f'latency p50 {_fmt(row["p50"], ".2f")} / p99 {_fmt(row["p99"], ".2f")} ms, PSS of all processes '
+                    f'{_fmt(row["pss_mb"], ".0f")} MB, wall {row["wall_s"]:.0f} s, rc {r["rc"]}, robots held: '
+                    f'{row["lost"]}',
+                    flush=True,
+                )
                 if r['rc'] != 0:
                     print(r.get('output', ''))
                     continue
             q = quality(record, policy)
             results[f'quality_{n}'] = q
-            print(f'\n## learnt flock2d policy, {q["robots"]} robots, {q["steps"]} steps, ROS (hosted, lockstep) vs '
-                  f'offline rollout vs ground truth from the same initial state')
-            print(f'ROS recording vs core.rollout: max difference {q["max_diff_vs_rollout"]:.3g} '
-                  f'(bit for bit: {q["bit_for_bit"]})')
+            print(
+                f'\n## learnt flock2d policy, {q["robots"]} robots, {q["steps"]} steps, ROS (hosted, lockstep) vs '
+                f'offline rollout vs ground truth from the same initial state'
+            )
+            print(
+                f'ROS recording vs core.rollout: max difference {q["max_diff_vs_rollout"]:.3g} '
+                f'(bit for bit: {q["bit_for_bit"]})'
+            )
             for name in ('ros', 'rollout', 'ground_truth'):
                 m = q[name]
-                print(f'{name:13s} avd end {m["avd_end"]:.4f} (last 10 % {m["avd_last10"]:.4f})  '
-                      f'amd end {m["amd_end"]:.4f} (last 10 % {m["amd_last10"]:.4f})', flush=True)
+                print(
+                    f'{name:13s} avd end {m["avd_end"]:.4f} (last 10 % {m["avd_last10"]:.4f})  '
+                    f'amd end {m["amd_end"]:.4f} (last 10 % {m["amd_last10"]:.4f})',
+                    flush=True,
+                )
     out = Path(a.out) if a.out else tmp / 'results.json'
     out.write_text(json.dumps(results, indent=1, default=str))
     print(f'\n# results: {out}; logs and recordings: {tmp}')

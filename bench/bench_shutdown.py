@@ -20,6 +20,7 @@ the node, loading the policy). Before its handlers exist (interpreter start-up a
 Prints, per node: clean exits (status 0), exits within 2 s, stops with leftovers, and the
 stop time p50 / max, with the command line and the machine.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,27 +39,52 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from knode_swarm_ros.nodes.swarm import shm  # noqa: E402
-from knode_swarm_ros.nodes.domains import claim_domain  # noqa: E402
+from knode_swarm_ros.nodes.swarm.domains import claim_domain  # noqa: E402
 from knode_swarm_ros.nodes.swarm.processes import catches_signal  # noqa: E402
 
 ROBOTS = 3
-READY = {'agent': 'heard all 3 robots: ready', 'agents': 'heard all 3 robots: ready', 'simulator': ': running',
-         'recorder': 'heard all 3 robots: ready'}
+READY = {
+    'agent': 'heard all 3 robots: ready',
+    'agents': 'heard all 3 robots: ready',
+    'simulator': ': running',
+    'recorder': 'heard all 3 robots: ready',
+}
 
 
 def _env(domain: int):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1', PYTHONPATH=str(REPO))
+    env = dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(domain),
+        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+        PYTHONUNBUFFERED='1',
+        OMP_NUM_THREADS='1',
+        PYTHONPATH=str(REPO),
+    )
     return env
 
 
 def _node(name, args, env, log):
-    return subprocess.Popen([sys.executable, '-m', f'knode_swarm_ros.nodes.{name}', '--ros-args', *args],
-                            env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, '-m', f'knode_swarm_ros.nodes.{name}', '--ros-args', *args],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
 
 
-SIM_ARGS = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
-            '-p', 'publish_rate:=20.0']
+SIM_ARGS = [
+    '-p',
+    f'robots:={ROBOTS}',
+    '-p',
+    'mode:=realtime',
+    '-p',
+    'steps:=0',
+    '-p',
+    'wait_for_agents:=false',
+    '-p',
+    'publish_rate:=20.0',
+]
 
 
 def _held(proc) -> set:
@@ -68,8 +94,6 @@ def _held(proc) -> set:
         held |= shm.shm_held_by(proc.pid)
         time.sleep(0.02)
     return held
-
-
 
 
 def one_start_stop(name, args, env, sig, tmp: Path, delay: float):
@@ -83,8 +107,14 @@ def one_start_stop(name, args, env, sig, tmp: Path, delay: float):
     time.sleep(delay)
     held = shm.shm_held_by(proc.pid)
     rc, stop_s, text, note = _signal_and_wait(proc, sig, log_path)
-    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by({n for n in held if 'port' not in n}),
-            'held': held, 'note': note, 'traceback': 'Traceback' in text}
+    return {
+        'rc': rc,
+        'stop_s': stop_s,
+        'left': shm.shm_left_by({n for n in held if 'port' not in n}),
+        'held': held,
+        'note': note,
+        'traceback': 'Traceback' in text,
+    }
 
 
 def _signal_and_wait(proc, sig, log_path: Path):
@@ -108,18 +138,32 @@ def one_stop(name, args, env, domain, sig, tmp: Path, rng):
     with open(log_path, 'wb') as log:
         proc = _node(name, args, env, log)
     deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and proc.poll() is None and READY[name] not in log_path.read_text(errors='replace'):
+    while (
+        time.monotonic() < deadline
+        and proc.poll() is None
+        and READY[name] not in log_path.read_text(errors='replace')
+    ):
         time.sleep(0.02)
     if proc.poll() is not None:
-        return {'rc': proc.returncode, 'stop_s': None, 'left': [], 'note': 'exited before ready:\n'
-                + log_path.read_text(errors='replace')[-2000:]}
+        return {
+            'rc': proc.returncode,
+            'stop_s': None,
+            'left': [],
+            'note': 'exited before ready:\n' + log_path.read_text(errors='replace')[-2000:],
+        }
     ready_s = time.monotonic() - t_start
     held = _held(proc)
     time.sleep(rng.uniform(0.0, 0.3))
     rc, stop_s, _, note = _signal_and_wait(proc, sig, log_path)
     segment = {n for n in held if 'port' not in n}
-    return {'rc': rc, 'stop_s': stop_s, 'left': shm.shm_left_by(segment, domain), 'held': held, 'note': note,
-            'ready_s': ready_s}
+    return {
+        'rc': rc,
+        'stop_s': stop_s,
+        'left': shm.shm_left_by(segment, domain),
+        'held': held,
+        'note': note,
+        'ready_s': ready_s,
+    }
 
 
 def main(argv=None):
@@ -136,26 +180,55 @@ def main(argv=None):
     env = _env(domain)
     tmp = Path(tempfile.mkdtemp(prefix='bench_shutdown_'))
     import torch
+
     from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+
     torch.manual_seed(0)
     policy = KNODEPolicy(PolicyConfig('flock2d', **DEFAULTS['flock2d']))
     policy_path = tmp / 'flock2d.pt'
     export_policy(policy, policy_path, policy.metadata())
-    print(f'# bench_shutdown {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, '
-          f'load {os.getloadavg()[0]:.1f}), ROS_DOMAIN_ID {domain}; command: '
-          f'{" ".join([sys.executable] + sys.argv)}', flush=True)
+    print(
+        f'# bench_shutdown {datetime.date.today()} on {platform.machine()} ({os.cpu_count()} cores, '
+        f'load {os.getloadavg()[0]:.1f}), ROS_DOMAIN_ID {domain}; command: '
+        f'{" ".join([sys.executable] + sys.argv)}',
+        flush=True,
+    )
     results = {}
     for name in a.nodes.split(','):
         traffic = None
         if name != 'simulator':
             traffic = _node('simulator', SIM_ARGS, env, open(tmp / 'traffic.log', 'wb'))
-        args = {'agent': ['-p', 'id:=0', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy_path}',
-                          '-p', 'use_sim_time:=true'],
-                'agents': ['-p', 'ids:=[0,1]', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy_path}',
-                           '-p', 'use_sim_time:=true'],
-                'simulator': SIM_ARGS,
-                'recorder': ['-p', f'robots:={ROBOTS}', '-p', f'output:={tmp / "rec.npz"}',
-                             '-p', 'use_sim_time:=true']}[name]
+        args = {
+            'agent': [
+                '-p',
+                'id:=0',
+                '-p',
+                f'robots:={ROBOTS}',
+                '-p',
+                f'policy:={policy_path}',
+                '-p',
+                'use_sim_time:=true',
+            ],
+            'agents': [
+                '-p',
+                'ids:=[0,1]',
+                '-p',
+                f'robots:={ROBOTS}',
+                '-p',
+                f'policy:={policy_path}',
+                '-p',
+                'use_sim_time:=true',
+            ],
+            'simulator': SIM_ARGS,
+            'recorder': [
+                '-p',
+                f'robots:={ROBOTS}',
+                '-p',
+                f'output:={tmp / "rec.npz"}',
+                '-p',
+                'use_sim_time:=true',
+            ],
+        }[name]
         rows, starts = [], []
         series_before = frozenset(shm.shm_snapshot())  # ports that killed processes left earlier
         try:
@@ -164,40 +237,55 @@ def main(argv=None):
                 row = one_stop(name, args, env, domain, sig, tmp, rng)
                 rows.append(row)
                 if row['note'] or row['left']:
-                    print(f'  {name} #{i} {sig.name}: rc {row["rc"]}, left {row["left"]}\n{row["note"]}', flush=True)
+                    print(
+                        f'  {name} #{i} {sig.name}: rc {row["rc"]}, left {row["left"]}\n{row["note"]}',
+                        flush=True,
+                    )
             readies = sorted(r['ready_s'] for r in rows if r.get('ready_s'))
-            for i in range(a.startup_reps if readies else 0):  # uniform over the start-up: 0 .. median time to ready
+            for i in range(
+                a.startup_reps if readies else 0
+            ):  # uniform over the start-up: 0 .. median time to ready
                 sig = signal.SIGINT if i % 2 == 0 else signal.SIGTERM
                 row = one_start_stop(name, args, env, sig, tmp, rng.uniform(0.0, readies[len(readies) // 2]))
                 starts.append(row)
                 if row['note'] or row['left']:
-                    print(f'  {name} start #{i} {sig.name}: rc {row["rc"]}, left {row["left"]}\n{row["note"]}',
-                          flush=True)
+                    print(
+                        f'  {name} start #{i} {sig.name}: rc {row["rc"]}, left {row["left"]}\n{row["note"]}',
+                        flush=True,
+                    )
         finally:
             if traffic is not None:
                 traffic.send_signal(signal.SIGINT)
                 traffic.wait(timeout=30)
-        series_left = shm.shm_left_by(set().union(*(r.get('held', set()) for r in rows)), domain, series_before)
+        series_left = shm.shm_left_by(
+            set().union(*(r.get('held', set()) for r in rows)), domain, series_before
+        )
         times = sorted(r['stop_s'] for r in rows if r['stop_s'] is not None)
         results[name] = rows
         clean = sum(r['rc'] == 0 for r in rows)
         fast = sum(r['rc'] == 0 and r['stop_s'] is not None and r['stop_s'] <= 2.0 for r in rows)
         left = sum(bool(r['left']) for r in rows)
         p50 = times[len(times) // 2] if times else float('nan')
-        print(f'{name:9s}: exit 0 {clean}/{len(rows)}, exit 0 within 2 s {fast}/{len(rows)}, '
-              f'stops leaving shm segments {left}/{len(rows)}, shm files left after the series '
-              f'{len(series_left)} (of the files it held: {sum(len(r.get("held", ())) for r in rows)} locks in all), '
-              f'stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
-              + (f' (left: {series_left[:6]})' if series_left else ''), flush=True)
+        print(
+            f'{name:9s}: exit 0 {clean}/{len(rows)}, exit 0 within 2 s {fast}/{len(rows)}, '
+            f'stops leaving shm segments {left}/{len(rows)}, shm files left after the series '
+            f'{len(series_left)} (of the files it held: {sum(len(r.get("held", ())) for r in rows)} locks in all), '
+            f'stop time p50 {p50:.3f} s, max {max(times) if times else float("nan"):.3f} s'
+            + (f' (left: {series_left[:6]})' if series_left else ''),
+            flush=True,
+        )
         if starts:
             times = sorted(r['stop_s'] for r in starts)
-            print(f'{"":9s}  signalled during start-up ({len(starts)}, 0 .. {readies[len(readies) // 2]:.1f} s after '
-                  f'it handles signals): exit 0 {sum(r["rc"] == 0 for r in starts)}, ended by SIGTERM\'s default '
-                  f'action before any handler {sum(r["rc"] == -signal.SIGTERM for r in starts)}, other '
-                  f'{sum(r["rc"] not in (0, -signal.SIGTERM) for r in starts)}, tracebacks '
-                  f'{sum(r["traceback"] for r in starts)}, within 2 s {sum(r["stop_s"] <= 2.0 for r in starts)}, '
-                  f'leaving shm segments {sum(bool(r["left"]) for r in starts)}, stop time p50 '
-                  f'{times[len(times) // 2]:.3f} s, max {times[-1]:.3f} s', flush=True)
+            print(
+                f'{"":9s}  signalled during start-up ({len(starts)}, 0 .. {readies[len(readies) // 2]:.1f} s after '
+                f"it handles signals): exit 0 {sum(r['rc'] == 0 for r in starts)}, ended by SIGTERM's default "
+                f'action before any handler {sum(r["rc"] == -signal.SIGTERM for r in starts)}, other '
+                f'{sum(r["rc"] not in (0, -signal.SIGTERM) for r in starts)}, tracebacks '
+                f'{sum(r["traceback"] for r in starts)}, within 2 s {sum(r["stop_s"] <= 2.0 for r in starts)}, '
+                f'leaving shm segments {sum(bool(r["left"]) for r in starts)}, stop time p50 '
+                f'{times[len(times) // 2]:.3f} s, max {times[-1]:.3f} s',
+                flush=True,
+            )
     claim.release()
     return 0
 

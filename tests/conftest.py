@@ -4,6 +4,7 @@ Sections: environment for ROS processes started by tests, then fixtures. Add new
 fixtures in their own section below; keep this module free of heavy imports (torch,
 rclpy) so that collection stays fast and tests that need neither never load them.
 """
+
 import os
 import sys
 
@@ -29,14 +30,15 @@ if sys.prefix not in _ament:
 # --- ROS domains ------------------------------------------------------------------
 # ROS_DOMAIN_ID 0 is everyone's default: never used here. 1..101 are valid on Linux
 # with the default port mapping. Every domain a test uses is claimed with an exclusive lock
-# file (knode_swarm_ros.nodes.domains), so two copies of the suite running at once (or a
+# file (knode_swarm_ros.nodes.swarm.domains), so two copies of the suite running at once (or a
 # swarm started by hand) never share one; the claim ends with the test.
 _DOMAIN_MIN, _DOMAIN_MAX = 1, 101
 
 
 def claim_ros_domain():
     """A :class:`DomainClaim` on a free domain id in 1..101 (``.domain_id``; ``.release()``)."""
-    from knode_swarm_ros.nodes.domains import claim_domain
+    from knode_swarm_ros.nodes.swarm.domains import claim_domain
+
     return claim_domain(range(_DOMAIN_MIN, _DOMAIN_MAX + 1))
 
 
@@ -56,18 +58,22 @@ def ros_domain_id(monkeypatch):
 # separate processes (tests/test_ros_*.py). Deselect them with `pytest -m "not ros"`.
 def pytest_configure(config):
     config.addinivalue_line(
-        'markers', 'ros: starts ROS 2 nodes (in-process rclpy or multi-process swarms); '
-                   'deselect with -m "not ros"')
+        'markers',
+        'ros: starts ROS 2 nodes (in-process rclpy or multi-process swarms); deselect with -m "not ros"',
+    )
 
 
 # --- policy files ------------------------------------------------------------------------
+
 
 @pytest.fixture(scope='session')
 def untrained_policies(tmp_path_factory):
     """Seeded, untrained policy files of both scenarios, ``{scenario: path}``: node and
     swarm tests must not depend on the shipped, trained ones."""
     import torch
+
     from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy
+
     out = {}
     for scenario in ('flock2d', 'boids3d'):
         torch.manual_seed(3)
@@ -111,8 +117,11 @@ def pytest_collectreport(report):
 
 
 def pytest_sessionfinish(session, exitstatus):
-    if _strict_skips() and any(_allowed(nodeid) is None for nodeid, _ in _skips) \
-            and session.exitstatus == pytest.ExitCode.OK:
+    if (
+        _strict_skips()
+        and any(_allowed(nodeid) is None for nodeid, _ in _skips)
+        and session.exitstatus == pytest.ExitCode.OK
+    ):
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
@@ -126,5 +135,9 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     terminalreporter.section('skipped tests (a skip is not a pass)')
     for nodeid, reason in _skips:
         why = _allowed(nodeid)
-        verdict = f'allowed: {why}' if why else ('NOT ALLOWED in CI: fails the run' if strict else 'not allowed in CI')
+        verdict = (
+            f'allowed: {why}'
+            if why
+            else ('NOT ALLOWED in CI: fails the run' if strict else 'not allowed in CI')
+        )
         terminalreporter.write_line(f'{nodeid}: {reason} [{verdict}]')

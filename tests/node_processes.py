@@ -5,6 +5,7 @@ LD_LIBRARY_PATH / _ROS_WHEELS_BOOTSTRAP_COMPLETE pair travels together, conftest
 polls its log for a line, ``stop`` sends a signal (or none) and waits. ``WAIT_S`` bounds every
 wait generously: only a hang fails, never a slow machine.
 """
+
 import os
 import subprocess
 import sys
@@ -16,16 +17,23 @@ WAIT_S = 120
 def start(argv, log):
     """``python *argv`` in its own session, stdout and stderr to the open file ``log``."""
     env = dict(os.environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
-    return subprocess.Popen([sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+    )
 
 
 def wait_for(proc, log_path, text):
     """Poll until ``text`` is in the log at ``log_path`` while ``proc`` runs (assert it got there)."""
     deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline and proc.poll() is None and text not in log_path.read_text(errors='replace'):
+    while (
+        time.monotonic() < deadline
+        and proc.poll() is None
+        and text not in log_path.read_text(errors='replace')
+    ):
         time.sleep(0.05)
-    assert proc.poll() is None and text in log_path.read_text(errors='replace'), log_path.read_text(errors='replace')
+    assert proc.poll() is None and text in log_path.read_text(errors='replace'), log_path.read_text(
+        errors='replace'
+    )
 
 
 def stop(proc, sig=None):

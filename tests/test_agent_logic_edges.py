@@ -4,6 +4,7 @@ joins a run already under way.
 Each test here fails on a mutation that the broader tests in test_nodes_logic.py let
 through (a `<` turned into `<=`, the first-step clamp of the delayed step removed).
 """
+
 import re
 
 import numpy as np
@@ -11,8 +12,8 @@ import pytest
 
 from knode_swarm_ros.core import neighbour_matrix_single
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
+from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.logic.common import ConfigError, stamp_ns
 
 SEC = 1_000_000_000
 
@@ -79,7 +80,7 @@ def test_realtime_neighbour_exactly_state_timeout_silent_still_counts():
         logic.receive(r, 2 * SEC, z(r), 2 * SEC)
     logic.receive(3, 2 * SEC - SEC // 2, z(3), 2 * SEC)  # exactly state_timeout before own
     assert logic.tick(2 * SEC).neighbours == 3
-    assert logic.tick(2 * SEC + 1).neighbours == 2       # one ns later: silent too long
+    assert logic.tick(2 * SEC + 1).neighbours == 2  # one ns later: silent too long
 
 
 def test_an_agent_joining_mid_run_with_delay_does_not_wait_for_steps_before_its_first():
@@ -143,8 +144,11 @@ def test_the_own_stamp_table_stays_bounded_after_late_own_states():
     logic = logic_for(policy)
     h = logic.buffer.horizon
     sizes = {}
-    for phase, steps in (('forward', range(0, 10 * h)), ('late', range(9 * h - 2, 3 * h, -1)),
-                         ('forward again', range(10 * h, 12 * h))):
+    for phase, steps in (
+        ('forward', range(0, 10 * h)),
+        ('late', range(9 * h - 2, 3 * h, -1)),
+        ('forward again', range(10 * h, 12 * h)),
+    ):
         for s in steps:
             assert logic.receive(0, stamp_ns(s, policy.dt), z(0), wall=0.0) == 'accepted'
         sizes[phase] = len(logic.stamps)
@@ -164,9 +168,9 @@ def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
     for r in range(4):
         logic.receive(r, stamp_ns(0, dt), z(r), wall=0.0)
     assert logic.lockstep_poll(0.0).step == 0
-    logic.receive(3, stamp_ns(2, dt), z(3.2), wall=0.0)                # early
+    logic.receive(3, stamp_ns(2, dt), z(3.2), wall=0.0)  # early
     for r in (0, 1, 2):
-        logic.receive(r, stamp_ns(1, dt), z(r), wall=10.0)             # robot 3's step 1 is lost
+        logic.receive(r, stamp_ns(1, dt), z(r), wall=10.0)  # robot 3's step 1 is lost
     assert logic.lockstep_poll(10.0) is None
     assert logic.lockstep_poll(10.5).neighbours == 2 and logic.left_out == {3}
     for r in (0, 1, 2):
@@ -176,16 +180,23 @@ def test_a_peer_left_out_whose_state_came_early_is_used_without_waiting():
     np.testing.assert_allclose(cmd.value, [1 + 2 + 3.2, 0.0])
 
 
-@pytest.mark.parametrize('ids, shown', [([0, 1], '0..1'), ([4, 5, 6], '4..6'), ([2], '[2]'), ([0, 2], '[0, 2]'),
-                                        ([3, 1, 2], '[3, 1, 2]')])
+@pytest.mark.parametrize(
+    'ids, shown',
+    [([0, 1], '0..1'), ([4, 5, 6], '4..6'), ([2], '[2]'), ([0, 2], '[0, 2]'), ([3, 1, 2], '[3, 1, 2]')],
+)
 def test_an_id_outside_the_swarm_names_the_ids_as_a_range_when_they_are_one(ids, shown):
     with pytest.raises(ConfigError, match=re.escape(f"is not one of the swarm's robot ids {shown} (")):
         AgentLogic(AgentConfig(9, ids), SumPolicy())
 
 
-@pytest.mark.parametrize('vx, vy, period_ms, limit', [(-0.6232744625373522, 0.0413259793472436, 81, 1.0),
-                                                      (0.5312512156361892, 0.08905603873921995, 187, 5.0),
-                                                      (-1.6979398304606041, 0.030887319354812974, 162, 5.0)])
+@pytest.mark.parametrize(
+    'vx, vy, period_ms, limit',
+    [
+        (-0.6232744625373522, 0.0413259793472436, 81, 1.0),
+        (0.5312512156361892, 0.08905603873921995, 187, 5.0),
+        (-1.6979398304606041, 0.030887319354812974, 162, 5.0),
+    ],
+)
 def test_a_braking_stop_ends_exactly_at_rest(vx, vy, period_ms, limit):
     """A stale own state: the robot brakes at most ``limit`` per axis each tick; once an axis'
     brake is below the limit (its velocity used up), every later command on it is exactly 0,
@@ -200,7 +211,7 @@ def test_a_braking_stop_ends_exactly_at_rest(vx, vy, period_ms, limit):
     assert finished
     for axis in finished:
         first = np.flatnonzero(np.abs(axis) < limit)[0]
-        assert np.all(axis[first + 1:] == 0.0), axis
+        assert np.all(axis[first + 1 :] == 0.0), axis
 
 
 def test_lockstep_never_gives_up_on_a_robot_not_yet_heard():

@@ -1,8 +1,9 @@
 """Comparison statistics on synthetic swarms with known answers."""
+
 import numpy as np
 import pytest
 
-from training.boids_stats import alignment, flockmates, speeds, subgroups, summary, wall_distance
+from training.assessment.boids_stats import alignment, flockmates, speeds, subgroups, summary, wall_distance
 
 
 def frame(positions, headings=None):
@@ -47,23 +48,31 @@ def test_summary_of_two_known_runs():
     for gap, v in ((1.0, 3.0), (2.0, 6.0)):
         runs.append(np.stack([frame([[t * v * dt + i * gap, 0, 0] for i in range(3)]) for t in range(T)]))
     s = summary(np.stack(runs), dt, modes=3)
-    expect = {"speed_mean": (3.0, 6.0), "speed_p05": (3.0, 6.0), "speed_p95": (3.0, 6.0),
-              "alignment": (1.0, 1.0), "flockmates": (2.0, 4 / 3), "subgroups_final": (1.0, 1.0),
-              "amd": (1.0, 2.0),
-              # every boid is at y = z = 0 with x >= 0: its closest wall is +x, 5 - x away
-              "wall_distance": tuple(np.mean([5 - (t * v * dt + i * g) for t in range(T) for i in range(3)])
-                                     for g, v in ((1.0, 3.0), (2.0, 6.0)))}
+    expect = {
+        'speed_mean': (3.0, 6.0),
+        'speed_p05': (3.0, 6.0),
+        'speed_p95': (3.0, 6.0),
+        'alignment': (1.0, 1.0),
+        'flockmates': (2.0, 4 / 3),
+        'subgroups_final': (1.0, 1.0),
+        'amd': (1.0, 2.0),
+        # every boid is at y = z = 0 with x >= 0: its closest wall is +x, 5 - x away
+        'wall_distance': tuple(
+            np.mean([5 - (t * v * dt + i * g) for t in range(T) for i in range(3)])
+            for g, v in ((1.0, 3.0), (2.0, 6.0))
+        ),
+    }
     for key, (a, b) in expect.items():
-        assert s[key]["mean"] == pytest.approx((a + b) / 2, rel=1e-9), key
-        assert s[key]["std"] == pytest.approx(abs(a - b) / 2, rel=1e-9, abs=1e-12), key
-    assert s["runs"] == 2 and sum(s["pod_energy"]) == pytest.approx(1.0)
+        assert s[key]['mean'] == pytest.approx((a + b) / 2, rel=1e-9), key
+        assert s[key]['std'] == pytest.approx(abs(a - b) / 2, rel=1e-9, abs=1e-12), key
+    assert s['runs'] == 2 and sum(s['pod_energy']) == pytest.approx(1.0)
 
 
 def test_summary_has_every_statistic():
     rng = np.random.default_rng(0)
     states = np.concatenate([rng.uniform(-3, 3, (2, 60, 6, 3)), np.tile([1.0, 0, 0], (2, 60, 6, 1))], axis=-1)
     s = summary(states, 1 / 60)
-    assert s["runs"] == 2 and len(s["pod_energy"]) == 10
-    assert sum(s["pod_energy"]) == pytest.approx(1.0)
-    for key in ("speed_mean", "alignment", "flockmates", "subgroups_final", "wall_distance", "amd"):
-        assert np.isfinite(s[key]["mean"])
+    assert s['runs'] == 2 and len(s['pod_energy']) == 10
+    assert sum(s['pod_energy']) == pytest.approx(1.0)
+    for key in ('speed_mean', 'alignment', 'flockmates', 'subgroups_final', 'wall_distance', 'amd'):
+        assert np.isfinite(s[key]['mean'])

@@ -11,6 +11,7 @@
 Until the ROS nodes land, an executable may be the placeholder that exits with status 2
 and "node not available yet"; set ACCEPT_PLACEHOLDER_NODES = False once they have.
 """
+
 import importlib.metadata
 import importlib.util
 import os
@@ -42,20 +43,22 @@ _IGNORED_ANYWHERE = {'.git', '__pycache__', '.pytest_cache', '.mypy_cache', '.ru
 _IGNORED_AT_TOP = {'build', 'install', 'log', 'runs', 'data', 'out'}
 
 needs_colcon = pytest.mark.skipif(
-    importlib.util.find_spec('colcon_core') is None
-    or importlib.util.find_spec('colcon_ros') is None,
+    importlib.util.find_spec('colcon_core') is None or importlib.util.find_spec('colcon_ros') is None,
     reason='colcon (colcon-common-extensions) is not installed in this interpreter: '
-           'the ros2-run layout check needs it (pip install -r requirements-dev.txt, '
-           'or `make test`, which does)')
+    'the ros2-run layout check needs it (pip install -r requirements-dev.txt, '
+    'or `make test`, which does)',
+)
 
 
 def _source_files(repo):
     """Relative paths of the files a checkout has: tracked and untracked, not ignored."""
     try:
         out = subprocess.run(
-            ['git', '-C', str(repo), 'ls-files', '-z', '--cached', '--others',
-             '--exclude-standard'],
-            check=True, capture_output=True, timeout=30).stdout
+            ['git', '-C', str(repo), 'ls-files', '-z', '--cached', '--others', '--exclude-standard'],
+            check=True,
+            capture_output=True,
+            timeout=30,
+        ).stdout
         files = [Path(p) for p in out.decode().split('\0') if p]
         return [p for p in files if (repo / p).is_file()]
     except (OSError, subprocess.SubprocessError):
@@ -65,12 +68,14 @@ def _source_files(repo):
         here = Path(dirpath)
         top = here == repo
         dirnames[:] = [
-            d for d in dirnames
-            if d not in _IGNORED_ANYWHERE and not d.endswith('.egg-info')
+            d
+            for d in dirnames
+            if d not in _IGNORED_ANYWHERE
+            and not d.endswith('.egg-info')
             and not (top and (d in _IGNORED_AT_TOP or d.startswith('.venv')))
-            and not (here / d / 'pyvenv.cfg').exists()]
-        files += [(here / f).relative_to(repo) for f in filenames
-                  if not f.endswith(('.pyc', '.pyo'))]
+            and not (here / d / 'pyvenv.cfg').exists()
+        ]
+        files += [(here / f).relative_to(repo) for f in filenames if not f.endswith(('.pyc', '.pyo'))]
     return files
 
 
@@ -92,7 +97,11 @@ def _sourced_environment(setup_bash, base_env):
     """os.environ after `source setup_bash` in bash, as a user's shell would have it."""
     out = subprocess.run(
         ['bash', '-c', 'source "$1" >/dev/null && env -0', 'bash', str(setup_bash)],
-        env=base_env, check=True, capture_output=True, timeout=60).stdout
+        env=base_env,
+        check=True,
+        capture_output=True,
+        timeout=60,
+    ).stdout
     env = {}
     for item in out.decode().split('\0'):
         if '=' in item:
@@ -104,8 +113,9 @@ def _sourced_environment(setup_bash, base_env):
 def _executable_path(prefix, name):
     """What `ros2 run` finds: an executable file <prefix>/lib/<package>/<name>."""
     path = Path(prefix) / 'lib' / PACKAGE / name
-    assert path.is_file(), f'{path} is missing; lib/{PACKAGE} holds ' \
-        f'{sorted(p.name for p in path.parent.glob("*"))}'
+    assert path.is_file(), (
+        f'{path} is missing; lib/{PACKAGE} holds {sorted(p.name for p in path.parent.glob("*"))}'
+    )
     assert os.access(path, os.X_OK), f'{path} is not executable'
     return path
 
@@ -117,34 +127,49 @@ def colcon_workspace(tmp_path_factory):
     src = ws / 'src' / PACKAGE
     _copy_sources(REPO, src)
     before = _repo_artifacts(REPO)
-    cmd = [sys.executable, '-m', 'colcon', '--log-base', str(ws / 'log'),
-           'build', '--base-paths', str(ws / 'src'),
-           '--build-base', str(ws / 'build'), '--install-base', str(ws / 'install'),
-           '--event-handlers', 'console_cohesion+', 'console_direct-']
+    cmd = [
+        sys.executable,
+        '-m',
+        'colcon',
+        '--log-base',
+        str(ws / 'log'),
+        'build',
+        '--base-paths',
+        str(ws / 'src'),
+        '--build-base',
+        str(ws / 'build'),
+        '--install-base',
+        str(ws / 'install'),
+        '--event-handlers',
+        'console_cohesion+',
+        'console_direct-',
+    ]
     env = dict(os.environ)
     env.pop('COLCON_PREFIX_PATH', None)
-    proc = subprocess.run(cmd, cwd=ws, env=env, capture_output=True, text=True,
-                          timeout=COLCON_TIMEOUT_S)
-    assert proc.returncode == 0, \
-        f'colcon build failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}'
+    proc = subprocess.run(cmd, cwd=ws, env=env, capture_output=True, text=True, timeout=COLCON_TIMEOUT_S)
+    assert proc.returncode == 0, f'colcon build failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}'
     assert _repo_artifacts(REPO) == before, 'the colcon build wrote into the repository'
     leftovers = sorted(p.name for p in src.glob('*.egg-info'))
     leftovers += [d for d in ('build', 'install', 'log') if (src / d).exists()]
     assert not leftovers, f'the colcon build wrote into the source tree: {leftovers}'
-    return {'ws': ws, 'src': src, 'install': ws / 'install',
-            'sourced_env': _sourced_environment(ws / 'install' / 'setup.bash', env)}
+    return {
+        'ws': ws,
+        'src': src,
+        'install': ws / 'install',
+        'sourced_env': _sourced_environment(ws / 'install' / 'setup.bash', env),
+    }
 
 
 @needs_colcon
 def test_colcon_install_has_ros2_run_layout(colcon_workspace, monkeypatch):
-    from ament_index_python.packages import (get_package_prefix,
-                                             get_package_share_directory)
+    from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
     install, src = colcon_workspace['install'], colcon_workspace['src']
     env = colcon_workspace['sourced_env']
     ament = env.get('AMENT_PREFIX_PATH', '')
-    assert str(install / PACKAGE) in ament.split(os.pathsep), \
+    assert str(install / PACKAGE) in ament.split(os.pathsep), (
         f'setup.bash did not put the package on AMENT_PREFIX_PATH: {ament!r}'
+    )
 
     monkeypatch.setenv('AMENT_PREFIX_PATH', ament)
     prefix = Path(get_package_prefix(PACKAGE))
@@ -166,20 +191,27 @@ def test_colcon_install_has_ros2_run_layout(colcon_workspace, monkeypatch):
 
     # Every module of the package is installed (a folder without __init__.py would
     # silently be left out by find_packages), and so are the shipped policies.
-    site = [Path(p) for p in env.get('PYTHONPATH', '').split(os.pathsep)
-            if p and Path(p).is_relative_to(install / PACKAGE)]
+    site = [
+        Path(p)
+        for p in env.get('PYTHONPATH', '').split(os.pathsep)
+        if p and Path(p).is_relative_to(install / PACKAGE)
+    ]
     assert len(site) == 1, f'expected one site-packages of the install on PYTHONPATH: {site}'
     for source in sorted((src / PACKAGE).rglob('*')):
         if source.suffix in ('.py', '.pt', '.onnx') and '__pycache__' not in source.parts:
             rel = source.relative_to(src)
-            assert (site[0] / rel).is_file(), \
-                f'{rel} is not installed (missing __init__.py or package_data?)'
+            assert (site[0] / rel).is_file(), f'{rel} is not installed (missing __init__.py or package_data?)'
 
     # The install, not the repository or the venv's editable copy, is what runs.
     where = subprocess.run(
         [sys.executable, '-c', f'import {PACKAGE}; print({PACKAGE}.__file__)'],
-        cwd=colcon_workspace['ws'], env=env, check=True, capture_output=True,
-        text=True, timeout=60).stdout.strip()
+        cwd=colcon_workspace['ws'],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).stdout.strip()
     assert Path(where).is_relative_to(site[0]), f'{PACKAGE} imported from {where}'
 
 
@@ -198,14 +230,24 @@ def test_ros2_run_agent(colcon_workspace, ros_domain_id, tmp_path, monkeypatch):
 
     log = tmp_path / 'agent.log'
     with open(log, 'wb') as out:
-        proc = subprocess.Popen([str(exe), *AGENT_ARGS], env=env, cwd=tmp_path,
-                                stdin=subprocess.DEVNULL, stdout=out,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(
+            [str(exe), *AGENT_ARGS],
+            env=env,
+            cwd=tmp_path,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         # Up when it logs its start-up line (a condition, not a time: loading torch takes from 1 s
         # on a quiet machine to tens of seconds on a loaded one).
         deadline = time.monotonic() + UP_TIMEOUT_S
-        while proc.poll() is None and time.monotonic() < deadline and UP_LINE not in log.read_text(errors='replace'):
+        while (
+            proc.poll() is None
+            and time.monotonic() < deadline
+            and UP_LINE not in log.read_text(errors='replace')
+        ):
             time.sleep(0.1)
         rc = proc.poll()
         output = log.read_text(errors='replace')
@@ -239,8 +281,8 @@ def test_venv_is_an_ament_prefix(monkeypatch):
         pytest.skip(f'{PACKAGE} is not installed in {sys.prefix} (run `make venv`)')
     if importlib.util.find_spec('ament_index_python') is None:
         pytest.skip('ament_index_python is not installed (pip install -r requirements.txt)')
-    from ament_index_python.packages import (PackageNotFoundError,
-                                             get_package_share_directory)
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
     monkeypatch.setenv('AMENT_PREFIX_PATH', sys.prefix)
     hint = 'run `make venv` to copy the data files into the venv'
     try:

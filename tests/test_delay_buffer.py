@@ -1,4 +1,5 @@
 """The agent's delay buffer: gaps, out-of-order messages, the earliest-state rule."""
+
 import numpy as np
 import pytest
 

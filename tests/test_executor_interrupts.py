@@ -3,22 +3,34 @@ where the raise would not unwind through Python alone: inside importlib's bootst
 lock's weakref callback ignores it and prints "Exception ignored") or below a function of torch
 (which may be C++ calling back into Python: an exception through it aborts). There it is raised
 again a moment later."""
+
 import signal
 import sys
 
 import pytest
 
-from knode_swarm_ros.nodes.executor import _IMPORT_MACHINERY, _Interrupts, _safe_to_raise, _StartupInterrupted
+from knode_swarm_ros.nodes.common.executor import (
+    _IMPORT_MACHINERY,
+    _Interrupts,
+    _safe_to_raise,
+    _StartupInterrupted,
+)
 
 
 def _frame_in(filename, function=None):
     """A frame of code compiled as ``filename`` (module level, or inside ``function``)."""
     space = {}
     if function is None:
-        exec(compile('import sys\nframe = sys._getframe()', filename, 'exec'), space)  # noqa: S102
+        exec(compile('import sys\nframe = sys._getframe()', filename, 'exec'), space)
     else:
-        exec(compile(f'import sys\ndef {function}():\n    return sys._getframe()\nframe = {function}()', filename,
-                     'exec'), space)  # noqa: S102
+        exec(
+            compile(
+                f'import sys\ndef {function}():\n    return sys._getframe()\nframe = {function}()',
+                filename,
+                'exec',
+            ),
+            space,
+        )
     return space['frame']
 
 

@@ -6,6 +6,7 @@ Each case runs in a child process (arming ends the process). The hang is a ``pau
 through ``ctypes.PyDLL``, which keeps the GIL: no Python thread, and no Python signal handler,
 can run. The deadlines waited for here only bound a hang of the harness; no timing is asserted.
 """
+
 import subprocess
 import sys
 
@@ -13,7 +14,7 @@ WAIT_S = 120  # generous: only a hang fails
 
 _CHILD = """
 import ctypes, sys, time
-from knode_swarm_ros.nodes import exit_watchdog
+from knode_swarm_ros.nodes.common import exit_watchdog
 if {no_native}:
     exit_watchdog._native_exit_after = lambda code, seconds: False
 print('saved', end='')  # stdout is a pipe: block-buffered, not flushed by this line
@@ -29,8 +30,12 @@ stuck_in_native()
 
 
 def _run(code: int, gil: bool, no_native: bool = False):
-    return subprocess.run([sys.executable, '-c', _CHILD.format(code=code, gil=gil, no_native=no_native)],
-                          capture_output=True, text=True, timeout=WAIT_S)
+    return subprocess.run(
+        [sys.executable, '-c', _CHILD.format(code=code, gil=gil, no_native=no_native)],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+    )
 
 
 def test_a_hang_in_native_code_holding_the_gil_ends_with_the_armed_status():

@@ -7,6 +7,7 @@
   core.rollout bit for bit, with one policy call per process and step;
 * ``ids`` as a list or a range; bad ids are refused with a message naming the parameter.
 """
+
 import random
 from dataclasses import replace
 
@@ -16,15 +17,16 @@ import pytest
 from knode_swarm_ros.core import load_policy
 from knode_swarm_ros.core.rollout import rollout, zoh_step
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
-from knode_swarm_ros.nodes.hosted_logic import HostedAgents, format_ids, parse_ids
-from knode_swarm_ros.nodes.simulator_logic import initial_state
+from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.logic.agent.hosted import HostedAgents, format_ids, parse_ids
+from knode_swarm_ros.logic.common import ConfigError, stamp_ns
+from knode_swarm_ros.logic.simulator.swarm_sim import initial_state
 
 
 @pytest.fixture(scope='module')
 def policies(untrained_policies):
     import torch
+
     torch.set_num_threads(1)
     return {name: load_policy(path) for name, path in untrained_policies.items()}
 
@@ -50,7 +52,7 @@ def test_hosted_robots_equal_lone_agents_in_lockstep(policies, scenario):
         rng.shuffle(order)
         messages = [(r, frame[r]) for r in order]
         if s == 10:
-            messages.insert(2, (order[0], frame[order[0]]))         # a duplicate
+            messages.insert(2, (order[0], frame[order[0]]))  # a duplicate
             messages.insert(3, (3, np.full(frame.shape[1], np.nan)))  # hostile: dropped and counted
         for robot, z in messages:
             for rid, logic in lone.items():
@@ -64,7 +66,9 @@ def test_hosted_robots_equal_lone_agents_in_lockstep(policies, scenario):
     for rid in hosted:
         assert len(got_lone[rid]) == len(frames)
         assert [c[:2] for c in got_host[rid]] == [c[:2] for c in got_lone[rid]]
-        assert np.array_equal(np.stack([c[2] for c in got_host[rid]]), np.stack([c[2] for c in got_lone[rid]]))
+        assert np.array_equal(
+            np.stack([c[2] for c in got_host[rid]]), np.stack([c[2] for c in got_lone[rid]])
+        )
         assert host.logics[rid].counters == lone[rid].counters
     assert host.logics[1].counters['non_finite'] == 1 and host.logics[1].counters['duplicate'] >= 1
     assert host.calls == len(frames)  # one batched call per step for all hosted robots
@@ -90,8 +94,11 @@ def test_hosted_robots_equal_lone_agents_in_realtime(policies):
         assert sorted(got) == hosted
         for rid, logic in lone.items():
             want = logic.tick(ns)
-            assert (got[rid].step, got[rid].stamp_ns, got[rid].neighbours) == (want.step, want.stamp_ns,
-                                                                                want.neighbours)
+            assert (got[rid].step, got[rid].stamp_ns, got[rid].neighbours) == (
+                want.step,
+                want.stamp_ns,
+                want.neighbours,
+            )
             assert np.allclose(got[rid].value, want.value, rtol=1e-5, atol=1e-5)  # batch of 4 vs 1
     assert host.calls == len(frames)
     late = stamp_ns(len(frames) + 100, policy.dt)  # every own state 1 s old: each robot stops, as alone
@@ -110,8 +117,10 @@ def test_any_split_over_processes_equals_the_offline_rollout_bit_for_bit(policie
     n, steps = 10, 60
     z0, _ = initial_state(scenario, n, seed=7)
     ids = list(range(n))
-    hosts = [HostedAgents(part, AgentConfig(0, ids, 'lockstep'), policy)
-             for part in ([0, 3, 6, 9], [1, 4, 7], [2, 5, 8])]
+    hosts = [
+        HostedAgents(part, AgentConfig(0, ids, 'lockstep'), policy)
+        for part in ([0, 3, 6, 9], [1, 4, 7], [2, 5, 8])
+    ]
     rng = random.Random(1)
     states = [z0]
     for s in range(steps):
@@ -139,8 +148,14 @@ def test_ids_as_a_list_or_a_range():
     assert parse_ids(4) == [4]
     assert format_ids([3, 4, 5]) == '3..5' and format_ids([1, 4]) == '[1, 4]'
     assert format_ids([4, 3]) == '3..4' and format_ids([5]) == '[5]'  # a pair is a run; one id is not
-    for bad, words in (('5..2', 'ends before'), ('a..b', 'neither'), ([1, 1], 'duplicates'), ([], 'no robot'),
-                       ([-1, 2], 'negative'), (1.5, 'neither')):
+    for bad, words in (
+        ('5..2', 'ends before'),
+        ('a..b', 'neither'),
+        ([1, 1], 'duplicates'),
+        ([], 'no robot'),
+        ([-1, 2], 'negative'),
+        (1.5, 'neither'),
+    ):
         with pytest.raises(ConfigError, match=words) as info:
             parse_ids(bad)
         assert "'ids'" in str(info.value)
@@ -153,9 +168,10 @@ def test_a_hosted_id_outside_the_swarm_is_refused(policies):
 
 def test_the_launcher_splits_robots_over_hosting_processes():
     from knode_swarm_ros.nodes.swarm import hosting
-    assert hosting.resolve_agents_per_process(0, 10, cores=2) == 1       # small swarms: one process per robot
-    assert hosting.resolve_agents_per_process(0, 100, cores=2) == 50     # 2 processes on 2 cores
-    assert hosting.resolve_agents_per_process(0, 200, cores=16) == 25    # at most 8 processes
+
+    assert hosting.resolve_agents_per_process(0, 10, cores=2) == 1  # small swarms: one process per robot
+    assert hosting.resolve_agents_per_process(0, 100, cores=2) == 50  # 2 processes on 2 cores
+    assert hosting.resolve_agents_per_process(0, 200, cores=16) == 25  # at most 8 processes
     assert hosting.resolve_agents_per_process(4, 3) == 3
     with pytest.raises(ConfigError, match='--agents-per-process'):
         hosting.resolve_agents_per_process(-1, 10)
@@ -178,6 +194,7 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
     # agent does (same commands, same counters, same notes). A frame takes 2 timeouts of wall
     # time; a timeout above 1 s late on the wall clock catches a deadline of t * timeout.
     from dataclasses import replace as _replace
+
     base = policies['flock2d']
     policy = _Retimed(base, tau)
     n, hosted = 8, [0, 3, 4, 7]
@@ -186,7 +203,13 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
     frames = _frames('flock2d', n, 30, seed=4)
     lone = {rid: AgentLogic(_replace(config, robot_id=rid), policy) for rid in hosted}
     host = HostedAgents(hosted, config, policy)
-    lost = {(5, 10), (5, 11), (3, 15), (2, 20), (0, 20)}  # a peer twice, a hosted robot's own state, two at once
+    lost = {
+        (5, 10),
+        (5, 11),
+        (3, 15),
+        (2, 20),
+        (0, 20),
+    }  # a peer twice, a hosted robot's own state, two at once
     got_lone, got_host = {r: [] for r in hosted}, {r: [] for r in hosted}
     events_lone, events_host = [], []
     rng = random.Random(3)
@@ -210,12 +233,14 @@ def test_hosted_robots_equal_lone_agents_with_lost_states_and_timeouts(policies,
                 logic.receive(robot, ns, frame[robot], None, wall)
             host.receive(robot, ns, frame[robot], None, wall)
             collect(wall)
-        collect(wall + 0.6 * timeout)   # a timer before the timeout: nothing new
-        collect(wall + 1.2 * timeout)   # after it: the robots give up on the missing peers
+        collect(wall + 0.6 * timeout)  # a timer before the timeout: nothing new
+        collect(wall + 1.2 * timeout)  # after it: the robots give up on the missing peers
     for rid in hosted:
         assert len(got_host[rid]) == len(got_lone[rid]) >= len(frames) - 2
         assert [c[:3] for c in got_host[rid]] == [c[:3] for c in got_lone[rid]]
-        assert np.array_equal(np.stack([c[3] for c in got_host[rid]]), np.stack([c[3] for c in got_lone[rid]]))
+        assert np.array_equal(
+            np.stack([c[3] for c in got_host[rid]]), np.stack([c[3] for c in got_lone[rid]])
+        )
         assert dict(host.logics[rid].counters) == dict(lone[rid].counters)
         assert host.logics[rid].status() == lone[rid].status()
     assert lone[0].counters['gave_up'] >= 2 and any('heard again' in e for e in events_lone)
@@ -242,8 +267,8 @@ def test_hosted_commands_are_cleaned_like_a_lone_agents(policies):
     class Wild(_Retimed):
         def __call__(self, Y, mask):
             u = np.array(self._policy(Y, mask))
-            u[Y[:, 0, 0] > 0, 0] = np.nan       # robots right of the origin: non-finite
-            u[Y[:, 0, 1] > 0, 1] = 1e6           # robots above it: far beyond the limit
+            u[Y[:, 0, 0] > 0, 0] = np.nan  # robots right of the origin: non-finite
+            u[Y[:, 0, 1] > 0, 1] = 1e6  # robots above it: far beyond the limit
             return u
 
     policy = Wild(base, base.tau)
@@ -290,5 +315,5 @@ def test_a_hosted_robot_missing_its_own_delayed_state_answers_when_the_last_peer
             cmd = logic.lockstep_poll(0.0)
             if cmd is not None:
                 got_lone.append((i, rid, cmd.step, cmd.neighbours))
-    assert (7, 0, 2, 2) in got_lone             # robot 0's step 2, at the late state's arrival
+    assert (7, 0, 2, 2) in got_lone  # robot 0's step 2, at the late state's arrival
     assert sorted(got_host) == sorted(got_lone)

@@ -1,5 +1,6 @@
 """Issue 10, items 8 and 9: bad files give a clear error naming the file and the field, exit
 status 2, never a traceback; every policy field is bounded by what a policy can sensibly be."""
+
 import json
 import subprocess
 import sys
@@ -9,8 +10,17 @@ import numpy as np
 import pytest
 import torch
 
-from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, PolicyError, TrajectoryError,
-                                  export_policy, load_policy, load_trajectories, save_trajectories)
+from knode_swarm_ros.core import (
+    DEFAULTS,
+    KNODEPolicy,
+    PolicyConfig,
+    PolicyError,
+    TrajectoryError,
+    export_policy,
+    load_policy,
+    load_trajectories,
+    save_trajectories,
+)
 
 
 @pytest.fixture
@@ -32,12 +42,22 @@ def _with_meta(tmp_path, policy, **changes):
     return path
 
 
-@pytest.mark.parametrize('key,value', [
-    ('scenario', ['flock2d']), ('scenario', {'name': 'flock2d'}), ('format', ['knode-policy/1']),
-    ('command', {'a': 1}),
-    # item 9: unbounded sizes and times
-    ('k', 10**9), ('tau', 10**9), ('dt', 1e-300), ('dt', 1e9), ('d_cr', 1e300), ('command_limit', 1e300),
-])
+@pytest.mark.parametrize(
+    'key,value',
+    [
+        ('scenario', ['flock2d']),
+        ('scenario', {'name': 'flock2d'}),
+        ('format', ['knode-policy/1']),
+        ('command', {'a': 1}),
+        # item 9: unbounded sizes and times
+        ('k', 10**9),
+        ('tau', 10**9),
+        ('dt', 1e-300),
+        ('dt', 1e9),
+        ('d_cr', 1e300),
+        ('command_limit', 1e300),
+    ],
+)
 def test_policy_metadata_of_the_wrong_type_or_size_is_refused_naming_the_key(tmp_path, good, key, value):
     path = _with_meta(tmp_path, good[0], **{key: value})
     with pytest.raises(PolicyError) as err:
@@ -51,19 +71,27 @@ def test_bounds_still_accept_the_shipped_kind_of_policy(tmp_path, good):
 
 
 def _npz(path, **fields):
-    base = dict(states=np.zeros((1, 3, 2, 4)), dt=np.float64(0.01), scenario=np.str_('flock2d'),
-                meta=np.str_('{}'))
+    base = dict(
+        states=np.zeros((1, 3, 2, 4)), dt=np.float64(0.01), scenario=np.str_('flock2d'), meta=np.str_('{}')
+    )
     base.update(fields)
     with open(path, 'wb') as fh:
         np.savez(fh, **base)
     return path
 
 
-@pytest.mark.parametrize('field,value', [
-    ('dt', np.array([0.01, 0.02])), ('dt', np.str_('fast')), ('scenario', np.array(['flock2d', 'boids3d'])),
-    ('scenario', np.float64(3.0)), ('meta', np.str_('[1, 2]')), ('meta', np.str_('"text"')),
-    ('meta', np.array(['{}', '{}'])),
-])
+@pytest.mark.parametrize(
+    'field,value',
+    [
+        ('dt', np.array([0.01, 0.02])),
+        ('dt', np.str_('fast')),
+        ('scenario', np.array(['flock2d', 'boids3d'])),
+        ('scenario', np.float64(3.0)),
+        ('meta', np.str_('[1, 2]')),
+        ('meta', np.str_('"text"')),
+        ('meta', np.array(['{}', '{}'])),
+    ],
+)
 def test_trajectory_fields_of_the_wrong_type_are_refused_naming_the_field(tmp_path, field, value):
     path = _npz(tmp_path / 'bad.npz', **{field: value})
     with pytest.raises(TrajectoryError) as err:
@@ -76,8 +104,24 @@ def test_rollout_cli_refuses_an_array_dt_with_status_2_and_keeps_its_output(tmp_
     out = tmp_path / 'out.npz'
     save_trajectories(out, np.ones((1, 2, 2, 4)), 0.01, 'flock2d', {'keep': True})
     before = out.read_bytes()
-    proc = subprocess.run([sys.executable, '-m', 'training.rollout', '--policy', str(good[1]), '--init', str(bad),
-                           '--steps', '3', '--out', str(out)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'training.rollout',
+            '--policy',
+            str(good[1]),
+            '--init',
+            str(bad),
+            '--steps',
+            '3',
+            '--out',
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 2, proc.stderr
     assert "'dt'" in proc.stderr and 'bad.npz' in proc.stderr and 'Traceback' not in proc.stderr
     assert out.read_bytes() == before

@@ -1,4 +1,5 @@
 """Knowledge terms: forces equal minus the autograd gradient of their potentials."""
+
 import pytest
 import torch
 
@@ -19,7 +20,7 @@ def matrices(own, neighbours, mask_rows, d=None):
     """Y [1, k, d] with the positions given (d = 2 p: zero velocities), mask [1, k] from mask_rows."""
     rows = [own] + neighbours
     Y = torch.zeros(1, len(rows), d or 2 * len(own))
-    Y[0, :, :len(own)] = torch.tensor(rows, dtype=torch.float64)
+    Y[0, :, : len(own)] = torch.tensor(rows, dtype=torch.float64)
     return Y, torch.tensor([mask_rows], dtype=torch.float64)
 
 
@@ -52,7 +53,7 @@ def test_only_the_closest_active_neighbour_counts():
     Y, mask = matrices([0.0, 0.0], [[0.0, 0.3], [0.6, 0.0], [0.0, -0.5]], [1, 0, 1, 1])
     # Row 1 is closest but inactive: the closest active one is row 3 at distance 0.5.
     force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0)
-    torch.testing.assert_close(force, torch.tensor([[0.0, 0.5 / 0.5 ** 4]]))
+    torch.testing.assert_close(force, torch.tensor([[0.0, 0.5 / 0.5**4]]))
 
 
 def test_no_force_beyond_d0_or_without_neighbours():
@@ -67,7 +68,7 @@ def test_coincident_robots_get_the_floored_push_along_plus_x():
     # lambda / min_distance^3 (issue 18: it used to be exactly zero).
     Y, mask = matrices([1.0, 1.0], [[1.0, 1.0]], [1, 1])
     force = collision_avoidance(Y, mask, 2, torch.tensor(2.0), d0=1.0, min_distance=0.01)
-    torch.testing.assert_close(force, torch.tensor([[2.0 / 0.01 ** 3, 0.0]]))
+    torch.testing.assert_close(force, torch.tensor([[2.0 / 0.01**3, 0.0]]))
 
 
 def test_closer_than_the_floor_keeps_the_direction_and_the_floored_magnitude():
@@ -75,11 +76,11 @@ def test_closer_than_the_floor_keeps_the_direction_and_the_floored_magnitude():
     # lambda / min_distance^3, not the shrinking lambda * r / min_distance^4.
     Y, mask = matrices([0.0, 0.0], [[0.0, -0.005]], [1, 1])
     force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0, min_distance=0.01)
-    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01 ** 3]]))
+    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01**3]]))
     # Continuous at the floor: exactly at min_distance both formulas agree.
     Y, mask = matrices([0.0, 0.0], [[0.0, -0.01]], [1, 1])
     force = collision_avoidance(Y, mask, 2, torch.tensor(1.0), d0=1.0, min_distance=0.01)
-    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01 ** 3]]))
+    torch.testing.assert_close(force, torch.tensor([[0.0, 1.0 / 0.01**3]]))
 
 
 def test_coincident_robots_have_finite_gradients():
@@ -88,7 +89,7 @@ def test_coincident_robots_have_finite_gradients():
     phi = torch.tensor(1.3, requires_grad=True)
     collision_avoidance(Y, mask, 2, phi * phi, d0=1.0).sum().backward()
     assert torch.isfinite(Y.grad).all() and torch.isfinite(phi.grad).all()
-    torch.testing.assert_close(phi.grad, torch.tensor(2 * 1.3 / 1e-3 ** 3))
+    torch.testing.assert_close(phi.grad, torch.tensor(2 * 1.3 / 1e-3**3))
 
 
 def test_collision_range_includes_d0_exactly():

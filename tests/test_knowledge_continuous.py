@@ -5,21 +5,29 @@ walls): the force is minus its gradient, vanishes continuously at d0 and does no
 closest neighbour changes (the paper's form does both: the checks below measure its jumps too,
 they are why the variant exists), and keeps the paper's lambda / d^3 growth at contact.
 """
+
 import math
 
 import pytest
 import torch
-
-from knode_swarm_ros.core.knowledge import (collision_avoidance, continuous_collision_avoidance,
-                                            continuous_collision_potential, continuous_wall_avoidance,
-                                            continuous_wall_potential, wall_avoidance)
 from test_knowledge import float64, matrices  # noqa: F401  (float64: the autouse double-precision fixture)
+
+from knode_swarm_ros.core.knowledge import (
+    collision_avoidance,
+    continuous_collision_avoidance,
+    continuous_collision_potential,
+    continuous_wall_avoidance,
+    continuous_wall_potential,
+    wall_avoidance,
+)
 
 
 def both(Y, mask, p, gain, d0, **kw):
     """(continuous, paper) collision forces ``[B, p]``."""
-    return (continuous_collision_avoidance(Y, mask, p, torch.tensor(gain), d0, **kw),
-            collision_avoidance(Y, mask, p, torch.tensor(gain), d0, **kw))
+    return (
+        continuous_collision_avoidance(Y, mask, p, torch.tensor(gain), d0, **kw),
+        collision_avoidance(Y, mask, p, torch.tensor(gain), d0, **kw),
+    )
 
 
 def one_neighbour(dist, p=2, direction=0):
@@ -31,7 +39,8 @@ def one_neighbour(dist, p=2, direction=0):
 
 # --- force = -grad U --------------------------------------------------------------------------
 
-@pytest.mark.parametrize("p,gain,d0,seed", [(2, 1.7, 1.0, 0), (3, 0.6, 0.8, 1), (2, 2.5, 1.3, 2)])
+
+@pytest.mark.parametrize('p,gain,d0,seed', [(2, 1.7, 1.0, 0), (3, 0.6, 0.8, 1), (2, 2.5, 1.3, 2)])
 def test_collision_force_is_minus_grad_of_the_summed_potential(p, gain, d0, seed):
     """Random batches with several neighbours: some masked, some beyond d0, several within it."""
     torch.manual_seed(seed)
@@ -66,7 +75,7 @@ def test_collision_force_by_hand():
     torch.testing.assert_close(paper, torch.tensor([[0.0, 128.0]]))
 
 
-@pytest.mark.parametrize("box,d0,gain", [(5.0, 1.0, 0.8), (0.6, 1.0, 1.3), (2.0, 0.7, 2.0)])
+@pytest.mark.parametrize('box,d0,gain', [(5.0, 1.0, 0.8), (0.6, 1.0, 1.3), (2.0, 0.7, 2.0)])
 def test_wall_force_is_minus_grad_of_potential_inside_the_box(box, d0, gain):
     """box = 0.6 < d0: both faces of an axis push at once."""
     torch.manual_seed(3)
@@ -83,7 +92,9 @@ def test_wall_force_is_minus_grad_of_potential_inside_the_box(box, d0, gain):
 def test_wall_force_by_hand():
     # lambda = 1, d0 = 1, box 5: x 0.5 from +x: -(2 - 1) / 0.25 = -4; z 0.25 from -z: (4 - 1) / 0.0625 = 48.
     # box 0.6, x = 0.1: 0.5 from +x (-4) and 0.7 from -x (+(1/0.7 - 1) / 0.49).
-    f = continuous_wall_avoidance(torch.tensor([[4.5, 0.0, -4.75], [0.0, 0.0, 0.0]]), 5.0, torch.tensor(1.0), 1.0)
+    f = continuous_wall_avoidance(
+        torch.tensor([[4.5, 0.0, -4.75], [0.0, 0.0, 0.0]]), 5.0, torch.tensor(1.0), 1.0
+    )
     torch.testing.assert_close(f, torch.tensor([[-4.0, 0.0, 48.0], [0.0, 0.0, 0.0]]))
     f = continuous_wall_avoidance(torch.tensor([[0.1, 0.0]]), 0.6, torch.tensor(1.0), 1.0)
     torch.testing.assert_close(f, torch.tensor([[-4.0 + (1 / 0.7 - 1) / 0.49, 0.0]]))
@@ -91,36 +102,40 @@ def test_wall_force_by_hand():
 
 # --- continuity ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("gain,d0", [(1.0, 1.0), (1.7, 0.8)])
+
+@pytest.mark.parametrize('gain,d0', [(1.0, 1.0), (1.7, 0.8)])
 def test_collision_force_vanishes_continuously_at_d0_where_the_paper_jumps(gain, d0):
     for eps in (1e-2, 1e-4, 1e-6):
         inside, paper_inside = both(*one_neighbour(d0 - eps), 2, gain, d0)
         # lambda (1/(d0 - eps) - 1/d0) / (d0 - eps)^2 = lambda eps / d0^4 (1 + O(eps))
-        ratio = inside.norm() / (gain * eps / d0 ** 4)
+        ratio = inside.norm() / (gain * eps / d0**4)
         assert abs(ratio - 1) <= 4 * eps / d0, (eps, ratio)
         at_d0, paper_at_d0 = both(*one_neighbour(d0), 2, gain, d0)
         beyond, paper_beyond = both(*one_neighbour(d0 + eps), 2, gain, d0)
         assert torch.count_nonzero(at_d0) == 0 and torch.count_nonzero(beyond) == 0
         # the paper's force is lambda / d0^3 at d0 (its range includes d0) and 0 just beyond
-        torch.testing.assert_close(paper_at_d0.norm() - paper_beyond.norm(), torch.tensor(gain / d0 ** 3))
-        assert paper_inside.norm() >= gain / d0 ** 3
+        torch.testing.assert_close(paper_at_d0.norm() - paper_beyond.norm(), torch.tensor(gain / d0**3))
+        assert paper_inside.norm() >= gain / d0**3
 
 
-@pytest.mark.parametrize("gain,d0", [(1.0, 1.0), (0.6, 0.75)])  # box - d0 exact in binary
+@pytest.mark.parametrize('gain,d0', [(1.0, 1.0), (0.6, 0.75)])  # box - d0 exact in binary
 def test_wall_force_vanishes_continuously_at_d0_where_the_paper_jumps(gain, d0):
     box = 5.0
     for eps in (1e-2, 1e-4, 1e-6):
-        inside = continuous_wall_avoidance(torch.tensor([[box - d0 + eps, 0.0, 0.0]]), box, torch.tensor(gain), d0)
-        assert inside[0, 0] < 0 and abs(inside[0, 0].item() / (-gain * eps / d0 ** 4) - 1) <= 4 * eps / d0
+        inside = continuous_wall_avoidance(
+            torch.tensor([[box - d0 + eps, 0.0, 0.0]]), box, torch.tensor(gain), d0
+        )
+        assert inside[0, 0] < 0 and abs(inside[0, 0].item() / (-gain * eps / d0**4) - 1) <= 4 * eps / d0
         for x in (box - d0, box - d0 - eps):
             position = torch.tensor([[x, 0.0, -x]])
             assert torch.count_nonzero(continuous_wall_avoidance(position, box, torch.tensor(gain), d0)) == 0
-        jump = (wall_avoidance(torch.tensor([[box - d0, 0.0, 0.0]]), box, torch.tensor(gain), d0)
-                - wall_avoidance(torch.tensor([[box - d0 - eps, 0.0, 0.0]]), box, torch.tensor(gain), d0))
-        torch.testing.assert_close(jump, torch.tensor([[-gain / d0 ** 3, 0.0, 0.0]]))
+        jump = wall_avoidance(
+            torch.tensor([[box - d0, 0.0, 0.0]]), box, torch.tensor(gain), d0
+        ) - wall_avoidance(torch.tensor([[box - d0 - eps, 0.0, 0.0]]), box, torch.tensor(gain), d0)
+        torch.testing.assert_close(jump, torch.tensor([[-gain / d0**3, 0.0, 0.0]]))
 
 
-@pytest.mark.parametrize("p", [2, 3])
+@pytest.mark.parametrize('p', [2, 3])
 def test_no_jump_when_two_neighbours_swap_rank(p):
     """A at 0.5 + s along +x, B at 0.5 - s along +y: the closest one changes at s = 0. The
     continuous sum moves by O(eps) (Lipschitz bound 2 |f'(0.5)| sqrt(2) eps < 100 lambda eps),
@@ -135,18 +150,25 @@ def test_no_jump_when_two_neighbours_swap_rank(p):
     for eps in (1e-3, 1e-5, 1e-7):
         (c_before, p_before), (c_after, p_after) = at(-eps), at(eps)
         assert (c_after - c_before).norm() <= 100 * gain * eps
-        torch.testing.assert_close((p_after - p_before).norm(), torch.tensor(math.sqrt(2) * gain / 0.5 ** 3),
-                                   rtol=1e-4 + 10 * eps, atol=0)
+        torch.testing.assert_close(
+            (p_after - p_before).norm(),
+            torch.tensor(math.sqrt(2) * gain / 0.5**3),
+            rtol=1e-4 + 10 * eps,
+            atol=0,
+        )
 
 
 # --- a sum over neighbours -------------------------------------------------------------------
+
 
 def test_symmetric_neighbours_cancel_and_the_paper_does_not():
     Y, mask = matrices([0.0, 0.0], [[0.4, 0.0], [-0.4, 0.0]], [1, 1, 1])
     force, paper = both(Y, mask, 2, 1.0, 1.0)
     assert torch.count_nonzero(force) == 0 and paper.norm() > 1.0
     # three at 120 degrees, equal distance: the sum cancels to rounding
-    ring = [[0.3 * math.cos(a), 0.3 * math.sin(a)] for a in (0.1, 0.1 + 2 * math.pi / 3, 0.1 + 4 * math.pi / 3)]
+    ring = [
+        [0.3 * math.cos(a), 0.3 * math.sin(a)] for a in (0.1, 0.1 + 2 * math.pi / 3, 0.1 + 4 * math.pi / 3)
+    ]
     Y, mask = matrices([0.0, 0.0], ring, [1, 1, 1, 1])
     force, _ = both(Y, mask, 2, 1.0, 1.0)
     single, _ = both(*matrices([0.0, 0.0], ring[:1], [1, 1]), 2, 1.0, 1.0)
@@ -173,15 +195,19 @@ def test_masked_rows_contribute_nothing():
 
 # --- the floor and contact ------------------------------------------------------------------
 
+
 def floored(gain, min_distance, d0):
-    return gain * (1 / min_distance - 1 / d0) / min_distance ** 2
+    return gain * (1 / min_distance - 1 / d0) / min_distance**2
 
 
-@pytest.mark.parametrize("dist,direction,expected_axis,sign", [
-    (0.005, 1, 1, -1.0),   # closer than the floor, neighbour along +y: push along -y
-    (0.01, 0, 0, -1.0),    # exactly at the floor: the formula and the floor agree
-    (0.0, 0, 0, 1.0),      # on top of each other: +x, the first position axis
-])
+@pytest.mark.parametrize(
+    'dist,direction,expected_axis,sign',
+    [
+        (0.005, 1, 1, -1.0),  # closer than the floor, neighbour along +y: push along -y
+        (0.01, 0, 0, -1.0),  # exactly at the floor: the formula and the floor agree
+        (0.0, 0, 0, 1.0),  # on top of each other: +x, the first position axis
+    ],
+)
 def test_closer_than_the_floor_pushes_with_the_magnitude_at_the_floor(dist, direction, expected_axis, sign):
     gain, d0, md = 1.5, 1.0, 0.01
     force, _ = both(*one_neighbour(dist, direction=direction), 2, gain, d0, min_distance=md)
@@ -205,16 +231,17 @@ def test_outside_the_box_is_pushed_back_in_with_the_floored_magnitude():
     torch.testing.assert_close(f, torch.tensor([[-1.0, 1.0, 0.0]]) * floored(1.0, 1e-3, 1.0))
 
 
-@pytest.mark.parametrize("d0", [1.0, 0.5])
+@pytest.mark.parametrize('d0', [1.0, 0.5])
 def test_contact_growth_is_the_papers_lambda_over_d_cubed(d0):
     """magnitude d^3 / lambda = 1 - d / d0 -> 1 as d -> 0, for neighbours and walls alike."""
     gain, box = 2.0, 5.0
     for d in (1e-1, 1e-2, 1e-3, 1e-5):
         force, paper = both(*one_neighbour(d, p=3, direction=2), 3, gain, d0, min_distance=1e-9)
-        ratio = force.norm().item() * d ** 3 / gain
+        ratio = force.norm().item() * d**3 / gain
         assert abs(ratio - 1) <= d / d0 * (1 + 1e-9), (d, ratio)
-        torch.testing.assert_close(paper.norm(), torch.tensor(gain / d ** 3))
-        wall = continuous_wall_avoidance(torch.tensor([[0.0, box - d, 0.0]]), box, torch.tensor(gain), d0,
-                                         min_distance=1e-9)
+        torch.testing.assert_close(paper.norm(), torch.tensor(gain / d**3))
+        wall = continuous_wall_avoidance(
+            torch.tensor([[0.0, box - d, 0.0]]), box, torch.tensor(gain), d0, min_distance=1e-9
+        )
         # (box - d is rounded: the distance the wall sees is d to a relative 1e-12 or so)
-        assert abs(-wall[0, 1].item() * d ** 3 / gain - 1) <= d / d0 * (1 + 1e-6)
+        assert abs(-wall[0, 1].item() * d**3 / gain - 1) <= d / d0 * (1 + 1e-6)

@@ -4,6 +4,7 @@ The first tests need no ROS process: the plan is checked before anything starts.
 start the launcher and assert what must hold whatever the timing of the processes: nothing is
 started after a refused stage, and a summary is printed exactly when this run wrote the file.
 """
+
 import json
 import os
 import signal
@@ -14,8 +15,8 @@ import numpy as np
 import pytest
 
 from knode_swarm_ros.core import save_trajectories
+from knode_swarm_ros.logic.common import ConfigError
 from knode_swarm_ros.nodes import swarm
-from knode_swarm_ros.nodes.common import ConfigError
 
 
 def _plan(*argv):
@@ -31,9 +32,17 @@ def _main(argv, capsys):
 def test_record_folder_that_does_not_exist_yet_is_accepted_and_created_by_run(tmp_path, untrained_policies):
     """make demo on a fresh clone: --record out/demo/swarm_flock2d.npz without out/."""
     record = tmp_path / 'out' / 'demo' / 'swarm.npz'
-    plan = _plan('--policy', untrained_policies['flock2d'], '--record', record, '--figure',
-                 tmp_path / 'figs' / 'a.png', '--log-dir', tmp_path / 'logs')
-    assert plan.record == record and not record.parent.exists()   # nothing created by checking
+    plan = _plan(
+        '--policy',
+        untrained_policies['flock2d'],
+        '--record',
+        record,
+        '--figure',
+        tmp_path / 'figs' / 'a.png',
+        '--log-dir',
+        tmp_path / 'logs',
+    )
+    assert plan.record == record and not record.parent.exists()  # nothing created by checking
     (tmp_path / 'afile').write_text('x')
     with pytest.raises(ConfigError, match='is not a folder'):
         _plan('--policy', untrained_policies['flock2d'], '--record', tmp_path / 'afile' / 'x.npz')
@@ -43,6 +52,7 @@ def test_the_makefile_demo_target_passes_the_plan_check(tmp_path, monkeypatch):
     """The README's `make demo` arguments, from a checkout without out/ (shipped policy)."""
     import re
     from pathlib import Path
+
     makefile = (Path(__file__).resolve().parents[1] / 'Makefile').read_text()
     recipe = re.search(r'^demo:.*\n((?:\t.*\n)+)', makefile, re.M).group(1)
     argv = recipe.split('bin/swarm', 1)[1].replace('\\\n', ' ').split()
@@ -51,15 +61,19 @@ def test_the_makefile_demo_target_passes_the_plan_check(tmp_path, monkeypatch):
     assert plan.record == tmp_path / 'out' / 'demo' / 'swarm_flock2d.npz'
 
 
-def test_too_many_robots_for_the_nodes_or_the_memory_are_refused_before_anything_starts(tmp_path, capsys,
-                                                                                         monkeypatch):
+def test_too_many_robots_for_the_nodes_or_the_memory_are_refused_before_anything_starts(
+    tmp_path, capsys, monkeypatch
+):
     out = tmp_path / 'run.npz'
     code, cap = _main(['--robots', 13000, '--record', out, '--log-dir', tmp_path / 'logs'], capsys)
     assert code == 2 and '--robots must be in 1..10000' in cap.err and '13000' in cap.err
     monkeypatch.setattr(swarm.plan, 'available_memory_mb', lambda: 4096.0)  # the module that calls it
-    code, cap = _main(['--robots', 405, '--agents-per-process', 1, '--record', out, '--log-dir', tmp_path / 'logs'],
-                      capsys)
-    assert code == 2 and '405 agent processes need about 130.8 GB' in cap.err and '4.0 GB available' in cap.err
+    code, cap = _main(
+        ['--robots', 405, '--agents-per-process', 1, '--record', out, '--log-dir', tmp_path / 'logs'], capsys
+    )
+    assert (
+        code == 2 and '405 agent processes need about 130.8 GB' in cap.err and '4.0 GB available' in cap.err
+    )
     assert not out.exists() and not (tmp_path / 'logs' / 'pids.json').exists()
 
 
@@ -69,16 +83,41 @@ def _env():
 
 
 def _cmd(tmp_path, *args):
-    return [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(tmp_path / 'logs'), '--no-figure',
-            '--domain-id', os.environ['ROS_DOMAIN_ID'], *map(str, args)]
+    return [
+        sys.executable,
+        '-m',
+        'knode_swarm_ros.nodes.swarm',
+        '--log-dir',
+        str(tmp_path / 'logs'),
+        '--no-figure',
+        '--domain-id',
+        os.environ['ROS_DOMAIN_ID'],
+        *map(str, args),
+    ]
 
 
 @pytest.mark.ros
-def test_a_refused_simulator_stops_the_run_before_any_agent_starts(tmp_path, untrained_policies, ros_domain_id):
+def test_a_refused_simulator_stops_the_run_before_any_agent_starts(
+    tmp_path, untrained_policies, ros_domain_id
+):
     # The plan accepts --lockstep-timeout 1e-9 (> 0); the simulator's parameter range refuses it.
-    proc = subprocess.run(_cmd(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 6,
-                               '--lockstep-timeout', 1e-9, '--record', tmp_path / 'r.npz'),
-                          env=_env(), capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        _cmd(
+            tmp_path,
+            '--policy',
+            untrained_policies['flock2d'],
+            '--robots',
+            6,
+            '--lockstep-timeout',
+            1e-9,
+            '--record',
+            tmp_path / 'r.npz',
+        ),
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     out = proc.stdout + proc.stderr
     assert proc.returncode == 2, out
     assert "'lockstep_timeout'" in out and 'nothing else is started' in out and 'Traceback' not in out
@@ -91,12 +130,26 @@ def test_ctrl_c_summarises_only_a_file_this_run_wrote(tmp_path, untrained_polici
     record = tmp_path / 'old.npz'
     save_trajectories(record, np.zeros((1, 2, 10, 4)) + 7.0, 0.01, 'flock2d', {'generator': 'an earlier run'})
     before = record.read_bytes()
-    proc = subprocess.Popen(_cmd(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 3,
-                                 '--steps', 100000, '--record', record),
-                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        _cmd(
+            tmp_path,
+            '--policy',
+            untrained_policies['flock2d'],
+            '--robots',
+            3,
+            '--steps',
+            100000,
+            '--record',
+            record,
+        ),
+        env=_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     try:
-        first = proc.stdout.readline()    # the launcher is up: Ctrl-C now, whatever its children are doing
+        first = proc.stdout.readline()  # the launcher is up: Ctrl-C now, whatever its children are doing
         assert 'ROS_DOMAIN_ID' in first, first
         os.killpg(proc.pid, signal.SIGINT)
         out = first + proc.stdout.read()
@@ -107,7 +160,7 @@ def test_ctrl_c_summarises_only_a_file_this_run_wrote(tmp_path, untrained_polici
             proc.wait()
     assert 'SIGINT: stopping every process' in out and 'Traceback' not in out, out
     assert 'KeyboardInterrupt' not in out and 'Exception in' not in out, out
-    if record.read_bytes() == before:   # the recorder had nothing yet: the old file is not this run's
+    if record.read_bytes() == before:  # the recorder had nothing yet: the old file is not this run's
         assert 'earlier file, left as it was' in out and 'avd (' not in out, out
-    else:                               # it had frames: it saved them, and that file is summarised
+    else:  # it had frames: it saved them, and that file is summarised
         assert 'avd (' in out and '(interrupted)' in out, out

@@ -1,4 +1,5 @@
 """Metrics on closed-form cases."""
+
 import numpy as np
 import pytest
 
@@ -34,14 +35,14 @@ def test_pod_energy_of_known_singular_values():
     X = U @ np.diag(s) @ V.T  # snapshot matrix [n d, T]
     states = X.T.reshape(T, n, d)
     np.testing.assert_allclose(pod_energy(states, modes=4), [0.6, 0.3, 0.1, 0.0], atol=1e-12)
-    np.testing.assert_allclose(pod_energy(states, modes=3, squared=True), s ** 2 / 46.0, atol=1e-12)
+    np.testing.assert_allclose(pod_energy(states, modes=3, squared=True), s**2 / 46.0, atol=1e-12)
 
 
 def test_pod_energy_with_mean_subtraction():
     # A constant trajectory is rank one: all energy in mode 1; after centring it is all zeros.
     states = np.tile(np.arange(8.0).reshape(1, 4, 2), (10, 1, 1))
     np.testing.assert_allclose(pod_energy(states, modes=3), [1.0, 0.0, 0.0], atol=1e-12)
-    with pytest.raises(ValueError, match="zero"):
+    with pytest.raises(ValueError, match='zero'):
         pod_energy(states, center=True)
 
 

@@ -1,8 +1,14 @@
 """The information network against hand-built configurations (docs/DESIGN.md, Method A and B)."""
+
 import numpy as np
 import pytest
 
-from knode_swarm_ros.core import neighbour_matrices, neighbour_matrix, neighbour_matrix_rows, neighbour_matrix_single
+from knode_swarm_ros.core import (
+    neighbour_matrices,
+    neighbour_matrix,
+    neighbour_matrix_rows,
+    neighbour_matrix_single,
+)
 
 
 def flock(*rows):
@@ -44,8 +50,20 @@ def test_ties_are_broken_by_lower_id():
 def test_many_equidistant_robots_keep_id_order():
     # 16 robots exactly 5 from robot 0 (integer points of the circle of radius 5, shuffled
     # ids): an unstable sort keeps id order for 4 ties but not for this many (issue 18).
-    pts = [(5, 0), (-5, 0), (0, 5), (0, -5), (3, 4), (-3, 4), (3, -4), (-3, -4),
-           (4, 3), (-4, 3), (4, -3), (-4, -3)]
+    pts = [
+        (5, 0),
+        (-5, 0),
+        (0, 5),
+        (0, -5),
+        (3, 4),
+        (-3, 4),
+        (3, -4),
+        (-3, -4),
+        (4, 3),
+        (-4, 3),
+        (4, -3),
+        (-4, -3),
+    ]
     pts = pts + pts[:4]  # a few robots on the same spot: still distance 5, still id order
     order = np.random.default_rng(0).permutation(len(pts))
     z = flock((0, 0, 0, 0), *[(px, py, i + 1, 0) for i, (px, py) in enumerate(pts[j] for j in order)])
@@ -134,9 +152,12 @@ def _reference_matrix(i, z_now_i, z_delayed, p, d_cr, k):
     """Y_i by the definition, one robot, plain Python: neighbours within d_cr (inclusive) of robot
     i's delayed position, sorted by (distance, id), k - 1 of them, zero rows masked."""
     d = z_delayed.shape[1]
-    others = [(float(np.sqrt(np.sum((z_delayed[j, :p] - z_delayed[i, :p]) ** 2))), j)
-              for j in range(len(z_delayed)) if j != i]
-    chosen = sorted((dist, j) for dist, j in others if dist <= d_cr)[:k - 1]
+    others = [
+        (float(np.sqrt(np.sum((z_delayed[j, :p] - z_delayed[i, :p]) ** 2))), j)
+        for j in range(len(z_delayed))
+        if j != i
+    ]
+    chosen = sorted((dist, j) for dist, j in others if dist <= d_cr)[: k - 1]
     Y, mask = np.zeros((k, d)), np.zeros(k, dtype=bool)
     Y[0], mask[0] = z_now_i, True
     for row, (_, j) in enumerate(chosen, start=1):
@@ -153,7 +174,9 @@ def test_matrices_of_hosted_rows_equal_the_per_robot_definition(seed):
     rng = np.random.default_rng(seed)
     n, p = int(rng.integers(1, 15)), int(rng.choice([2, 3]))
     d = 2 * p
-    z_delayed = np.concatenate([rng.integers(-3, 4, size=(n, p)), rng.normal(size=(n, p))], axis=1).astype(float)
+    z_delayed = np.concatenate([rng.integers(-3, 4, size=(n, p)), rng.normal(size=(n, p))], axis=1).astype(
+        float
+    )
     z_now = z_delayed + rng.normal(size=z_delayed.shape)
     for k in (1, 2, 4, 6, n + 2):
         for d_cr in (0.5, 1.0, 2.0, 50.0):
@@ -165,7 +188,7 @@ def test_matrices_of_hosted_rows_equal_the_per_robot_definition(seed):
                 ref_Y, ref_mask = _reference_matrix(i, z_now[i], z_delayed, p, d_cr, k)
                 np.testing.assert_array_equal(Y[q], ref_Y)
                 np.testing.assert_array_equal(mask[q], ref_mask)
-                np.testing.assert_array_equal(Y[q], full_Y[i])   # = the batched builder of training
+                np.testing.assert_array_equal(Y[q], full_Y[i])  # = the batched builder of training
                 np.testing.assert_array_equal(mask[q], full_mask[i])
 
 
@@ -181,8 +204,8 @@ def test_batched_over_time_and_trajectories_equals_per_snapshot():
             np.testing.assert_array_equal(mask[s, t], mr)
 
 
-@pytest.mark.parametrize("bad", [dict(k=0), dict(tau=-1)])
+@pytest.mark.parametrize('bad', [dict(k=0), dict(tau=-1)])
 def test_invalid_arguments_are_refused(bad):
     states = np.zeros((2, 2, 4))
     with pytest.raises(ValueError):
-        neighbour_matrices(states, 2, 5.0, bad.get("k", 3), bad.get("tau", 0))
+        neighbour_matrices(states, 2, 5.0, bad.get('k', 3), bad.get('tau', 0))

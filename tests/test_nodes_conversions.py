@@ -2,30 +2,52 @@
 
 Message classes are plain Python: no rclpy.init, no ROS graph.
 """
+
 import math
 
+import nav_msgs.msg  # noqa: F401  (a broken install must fail, not skip)
 import numpy as np
 import pytest
-from knode_swarm_ros.nodes.odom_mapping import rotate
 
-import nav_msgs.msg  # noqa: F401,E402  (a broken install must fail, not skip)
-
-from knode_swarm_ros.nodes.conversions import (command_msg_type, command_to_msg, heading_to_quaternion,  # noqa: E402
-                                               msg_to_command, odom_to_state, quaternion_to_heading,
-                                               state_to_odom, time_msg, time_ns, yaw_quaternion)
+from knode_swarm_ros.logic.contract.rep105 import rotate
+from knode_swarm_ros.nodes.common.conversions import (
+    command_msg_type,
+    command_to_msg,
+    heading_to_quaternion,
+    msg_to_command,
+    odom_to_state,
+    quaternion_to_heading,
+    state_to_odom,
+    time_msg,
+    time_ns,
+    yaw_quaternion,
+)
 
 
 def _rotation(x, y, z, w):
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _headings():
     rng = np.random.default_rng(0)
     h = rng.normal(size=(500, 3))
-    special = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, 0, -1], [-1, 1e-9, 0], [-1, 0, 1e-12], [-1 + 1e-12, 1e-6, 0],
-               [1e-3, 0, 0], [-1e-3, 1e-3, 0]]
+    special = [
+        [1, 0, 0],
+        [-1, 0, 0],
+        [0, 1, 0],
+        [0, 0, -1],
+        [-1, 1e-9, 0],
+        [-1, 0, 1e-12],
+        [-1 + 1e-12, 1e-6, 0],
+        [1e-3, 0, 0],
+        [-1e-3, 1e-3, 0],
+    ]
     h = np.concatenate([h, np.array(special, dtype=np.float64)])
     return h / np.linalg.norm(h, axis=1, keepdims=True)
 
@@ -36,7 +58,7 @@ def test_heading_quaternion_rotates_x_onto_h_and_round_trips():
         assert math.isclose(sum(c * c for c in q), 1.0, rel_tol=1e-12)
         R = _rotation(*q)
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
-        assert np.allclose(R[:, 0], h, atol=1e-14)          # +x goes onto h
+        assert np.allclose(R[:, 0], h, atol=1e-14)  # +x goes onto h
         assert np.abs(quaternion_to_heading(*q) - h).max() <= 1e-15
     assert heading_to_quaternion([0, 0, 0]) == (0.0, 0.0, 0.0, 1.0)
     assert np.array_equal(quaternion_to_heading(0, 0, 0, 1), [1.0, 0.0, 0.0])
@@ -85,6 +107,7 @@ def test_boids3d_odometry_round_trip():
 
 def test_commands_round_trip():
     from geometry_msgs.msg import AccelStamped, TwistStamped
+
     assert command_msg_type('flock2d') is AccelStamped and command_msg_type('boids3d') is TwistStamped
     msg = command_to_msg(42, [1.5, -2.0], 'flock2d')
     assert isinstance(msg, AccelStamped) and msg.accel.linear.z == 0.0 and msg.header.frame_id == 'world'
@@ -99,7 +122,9 @@ def test_commands_round_trip():
 def test_serialized_odometry_equals_rclpy_serialization_and_decodes_the_same():
     from nav_msgs.msg import Odometry
     from rclpy import serialization
-    from knode_swarm_ros.nodes.conversions import CdrError, odom_from_cdr, odom_to_cdr
+
+    from knode_swarm_ros.nodes.common.conversions import CdrError, odom_from_cdr, odom_to_cdr
+
     rng = np.random.default_rng(2)
     for scenario, d in (('flock2d', 4), ('boids3d', 6)):
         for robot in (0, 7, 12, 345, 67890):
@@ -132,7 +157,8 @@ def test_serialized_odometry_equals_rclpy_serialization_and_decodes_the_same():
 
 def test_markers_show_robots_headings_and_links_within_d_cr():
     from knode_swarm_ros.core.scenarios import get_scenario
-    from knode_swarm_ros.nodes.markers import swarm_markers
+    from knode_swarm_ros.nodes.common.markers import swarm_markers
+
     states = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, 1.0], [5.0, 0.0, 0.0, 0.0]])
     out = swarm_markers(states, get_scenario('flock2d'), 1.5, 123)
     by_ns = {}
@@ -148,7 +174,9 @@ def test_serialized_commands_equal_rclpys_serialization():
     # the hosting agents node publishes commands as bytes built by command_to_cdr; rclpy leaves
     # alignment padding uninitialised: lengths and decoded messages
     from rclpy import serialization
-    from knode_swarm_ros.nodes.conversions import command_to_cdr
+
+    from knode_swarm_ros.nodes.common.conversions import command_to_cdr
+
     rng = np.random.default_rng(3)
     for scenario, m in (('flock2d', 2), ('boids3d', 3)):
         for ns in (0, 1, 999_999_999, 1_000_000_000, 12_345_678_901_234):
@@ -166,7 +194,9 @@ def test_serialized_commands_equal_rclpys_serialization():
 def test_serialized_strings_decode_as_rclpys():
     from rclpy import serialization
     from std_msgs.msg import String
-    from knode_swarm_ros.nodes.conversions import string_to_cdr
+
+    from knode_swarm_ros.nodes.common.conversions import string_to_cdr
+
     for text in ('', 'a', 'abc', 'abcd', '{"id":3,"ready":true}', 'ünïcödé ✓' * 7):
         ours = string_to_cdr(text)
         assert len(ours) == len(serialization.serialize_message(String(data=text)))

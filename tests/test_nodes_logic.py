@@ -4,6 +4,7 @@ These never import rclpy: they drive AgentLogic, SwarmSim and FrameCollector dir
 including a whole lockstep swarm (message delivery shuffled) that must equal core.rollout
 bit for bit.
 """
+
 import json
 import math
 import os
@@ -12,12 +13,23 @@ import numpy as np
 import pytest
 
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import (ConfigError, parse_status, percentiles, robot_id_list,
-                                          stamp_ns, status_json, step_of)
-from knode_swarm_ros.nodes.recorder_logic import FrameCollector, swarm_metrics
-from knode_swarm_ros.nodes.simulator_logic import (SwarmSim, initial_state, initial_state_from_file,
-                                                   make_ground_truth)
+from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.logic.common import (
+    ConfigError,
+    parse_status,
+    percentiles,
+    robot_id_list,
+    stamp_ns,
+    status_json,
+    step_of,
+)
+from knode_swarm_ros.logic.recorder import FrameCollector, swarm_metrics
+from knode_swarm_ros.logic.simulator.swarm_sim import (
+    SwarmSim,
+    initial_state,
+    initial_state_from_file,
+    make_ground_truth,
+)
 
 SEC = 1_000_000_000
 
@@ -35,7 +47,7 @@ class LinearPolicy:
 
     def __call__(self, Y, mask):
         self.calls.append((np.array(Y), np.array(mask)))
-        pos = Y[..., :self.p]
+        pos = Y[..., : self.p]
         rel = (pos[:, 1:] - pos[:, :1]) * mask[:, 1:, None]
         return self.scale * rel.sum(axis=1)
 
@@ -85,8 +97,16 @@ def test_agent_drops_and_counts_bad_states():
     assert logic.receive(1, now + int(0.1 * SEC), z2(0, 0), now) == 'accepted'
     assert logic.receive(1, now + int(0.1 * SEC), z2(5, 5), now) == 'duplicate'
     c = logic.counters
-    assert (c['unknown_id'], c['non_finite'], c['bad_size'], c['too_old'], c['too_future'],
-            c['accepted'], c['duplicate'], c['received']) == (2, 2, 1, 1, 1, 1, 1, 9)
+    assert (
+        c['unknown_id'],
+        c['non_finite'],
+        c['bad_size'],
+        c['too_old'],
+        c['too_future'],
+        c['accepted'],
+        c['duplicate'],
+        c['received'],
+    ) == (2, 2, 1, 1, 1, 1, 1, 9)
     assert logic.last_drop[0] == 'too_future'
     # An unknown clock (sim time before the first /clock) skips the age checks.
     assert logic.receive(2, 1 * SEC, z2(0, 0), 0) == 'accepted'
@@ -122,6 +142,7 @@ def test_lockstep_waits_for_every_neighbour_of_the_current_step():
     assert cmd is not None and cmd.step == 0 and cmd.stamp_ns == 0 and not cmd.stop
     # Y as the core builds it for robot 1 from the same states.
     from knode_swarm_ros.core import neighbour_matrix
+
     Z = np.stack([states[r] for r in range(4)])
     Y, mask = neighbour_matrix(Z, Z, 2, policy.d_cr, policy.k)
     assert np.array_equal(policy.calls[-1][0][1], Y[1]) and np.array_equal(policy.calls[-1][1][1], mask[1])
@@ -200,7 +221,7 @@ def test_realtime_drops_silent_neighbours_and_uses_delayed_states():
     policy = LinearPolicy(k=4, tau=2)
     logic = make_logic(policy, robot=0, mode='realtime', state_timeout=0.5)
     dt = policy.dt
-    logic.receive(3, stamp_ns(0, dt), z2(3, 0), 0)           # heard once, long ago
+    logic.receive(3, stamp_ns(0, dt), z2(3, 0), 0)  # heard once, long ago
     for s in range(100, 106):
         for r in (0, 1, 2):
             logic.receive(r, stamp_ns(s, dt), z2(r + s / 100.0, 0), 0)
@@ -208,12 +229,14 @@ def test_realtime_drops_silent_neighbours_and_uses_delayed_states():
     cmd = logic.tick(now)
     assert cmd.step == 105 and cmd.neighbours == 2  # robot 3 silent for > 0.5 s
     Y = policy.calls[-1][0][0]
-    assert np.allclose(Y[0], z2(1.05, 0))            # own row: now
-    assert np.allclose(Y[1], z2(1 + 1.03, 0))        # robot 1 at step 103 = 105 - tau
+    assert np.allclose(Y[0], z2(1.05, 0))  # own row: now
+    assert np.allclose(Y[1], z2(1 + 1.03, 0))  # robot 1 at step 103 = 105 - tau
 
 
 def test_commands_are_clipped_and_non_finite_policy_output_gives_zero():
-    logic = make_logic(LinearPolicy(k=4, scale=100.0, limit=None), robot=0, mode='realtime', command_limit=2.5)
+    logic = make_logic(
+        LinearPolicy(k=4, scale=100.0, limit=None), robot=0, mode='realtime', command_limit=2.5
+    )
     for r in range(4):
         logic.receive(r, SEC, z2(r, r), SEC)
     cmd = logic.tick(SEC)
@@ -227,6 +250,7 @@ def test_commands_are_clipped_and_non_finite_policy_output_gives_zero():
     class Broken(LinearPolicy):
         def __call__(self, Y, mask):
             return np.full((Y.shape[0], 2), np.nan)
+
     broken = make_logic(Broken(k=4), robot=0, mode='realtime')
     for r in range(4):
         broken.receive(r, SEC, z2(r, r), SEC)
@@ -236,6 +260,7 @@ def test_commands_are_clipped_and_non_finite_policy_output_gives_zero():
 
 def test_agent_command_matches_the_core_for_hand_made_neighbours(untrained_policies):
     from knode_swarm_ros.core import load_policy, neighbour_matrix_single
+
     policy = load_policy(untrained_policies['flock2d'])
     rng = np.random.default_rng(5)
     Z = np.concatenate([rng.uniform(-3, 3, (6, 2)), rng.normal(size=(6, 2))], axis=1)
@@ -252,7 +277,9 @@ def test_agent_command_matches_the_core_for_hand_made_neighbours(untrained_polic
 # --- a whole lockstep swarm without ROS equals core.rollout bit for bit ---------------------------
 def _lockstep_swarm(policy, z0, steps, rng, parity=True):
     n = z0.shape[0]
-    agents = [AgentLogic(AgentConfig(i, list(range(n)), 'lockstep', parity_batch=parity), policy) for i in range(n)]
+    agents = [
+        AgentLogic(AgentConfig(i, list(range(n)), 'lockstep', parity_batch=parity), policy) for i in range(n)
+    ]
     sim = SwarmSim(policy.scenario, z0, policy.dt, 'lockstep')
     frames = [sim.states.copy()]
     for _ in range(steps):
@@ -272,7 +299,10 @@ def _lockstep_swarm(policy, z0, steps, rng, parity=True):
 @pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
 def test_lockstep_protocol_equals_core_rollout_exactly(untrained_policies, scenario):
     from knode_swarm_ros.core import load_policy
-    from knode_swarm_ros.core.rollout import rollout  # not core.rollout: see the report (module shadows function)
+    from knode_swarm_ros.core.rollout import (
+        rollout,  # not core.rollout: see the report (module shadows function)
+    )
+
     policy = load_policy(untrained_policies[scenario])
     z0, _ = initial_state(scenario, 7, seed=1)
     steps = 40
@@ -295,8 +325,19 @@ def test_simulator_lockstep_bookkeeping_lost_and_rejoined_robots():
     assert sim.offer(1, 0, [0, 0, 0]) == 'bad_size'
     assert sim.waiting() == [1] and not sim.can_advance()
     # each counter is the number of times its outcome was returned, from 0
-    assert sim.counters.__dict__ == dict(accepted=1, unknown_id=1, bad_size=1, non_finite=1, stale=1, future=1,
-                                         rejoined=0, malformed=0, commanded=1, zeroed=0, lost_events=0)
+    assert sim.counters.__dict__ == dict(
+        accepted=1,
+        unknown_id=1,
+        bad_size=1,
+        non_finite=1,
+        stale=1,
+        future=1,
+        rejoined=0,
+        malformed=0,
+        commanded=1,
+        zeroed=0,
+        lost_events=0,
+    )
     sim.note_published(100.0)
     assert sim.overdue(101.0, 5.0) == [] and sim.overdue(106.0, 5.0) == [1]
     sim.declare_lost([1])
@@ -304,8 +345,11 @@ def test_simulator_lockstep_bookkeeping_lost_and_rejoined_robots():
     before = sim.states.copy()
     sim.advance()
     from knode_swarm_ros.core import zoh_step
+
     # Robot 1 (velocity (0, 1)) is stopped, braking to rest (-v / dt without a stop_limit), and not waited for.
-    assert np.array_equal(sim.states, zoh_step(before, np.array([[1.0, 0.0], [0.0, -1.0 / spec.dt]]), spec, spec.dt))
+    assert np.array_equal(
+        sim.states, zoh_step(before, np.array([[1.0, 0.0], [0.0, -1.0 / spec.dt]]), spec, spec.dt)
+    )
     assert sim.states[1, 3] == 0.0
     assert sim.waiting() == [0]
     assert sim.offer(0, sim.stamp_ns, [2.0, 0.0]) == 'accepted'
@@ -342,6 +386,7 @@ def test_simulator_latency_figures():
 @pytest.mark.parametrize('scenario', ['flock2d', 'boids3d'])
 def test_seeded_initial_state_is_the_training_density(scenario):
     from knode_swarm_ros.core.groundtruth import simulate
+
     z0, swarm = initial_state(scenario, 6, seed=11)
     ref = simulate(scenario, 1, 6, 3, seed=11, progress=False)[0]
     assert np.array_equal(z0, ref[0])
@@ -350,6 +395,7 @@ def test_seeded_initial_state_is_the_training_density(scenario):
 
 def test_ground_truth_mode_steps_the_ground_truth():
     from knode_swarm_ros.core.groundtruth import TannerSwarm
+
     z0, _ = initial_state('flock2d', 5, seed=2)
     sim = SwarmSim('flock2d', z0, 0.01, 'lockstep', ground_truth=make_ground_truth('flock2d', z0))
     ref = TannerSwarm(z0[None])
@@ -362,8 +408,18 @@ def test_ground_truth_mode_steps_the_ground_truth():
         make_ground_truth('flock2d', z0, 'nope')
 
 
-@pytest.mark.parametrize('limit, kept', [(None, None), (0.0, None), (0.5, 0.5), (-0.5, 'refused'),
-                                         (-1.0, 'refused'), (float('inf'), 'refused'), (float('nan'), 'refused')])
+@pytest.mark.parametrize(
+    'limit, kept',
+    [
+        (None, None),
+        (0.0, None),
+        (0.5, 0.5),
+        (-0.5, 'refused'),
+        (-1.0, 'refused'),
+        (float('inf'), 'refused'),
+        (float('nan'), 'refused'),
+    ],
+)
 def test_simulator_stop_limit_is_none_zero_or_a_finite_positive_value(limit, kept):
     z0 = np.array([z2(0, 0, 1, 0)])
     if kept == 'refused':
@@ -380,8 +436,8 @@ def test_simulator_latency_table_keeps_the_newest_257_to_512_published_steps():
     for s in range(512):
         sim.note_published(float(s))
         sim.advance()
-    sim.offer(0, stamp_ns(0, 0.01), [0.0, 0.0], wall=1000.0)        # 512 kept: step 0 among them
-    sim.note_published(512.0)                                        # 513: steps 0..255 dropped
+    sim.offer(0, stamp_ns(0, 0.01), [0.0, 0.0], wall=1000.0)  # 512 kept: step 0 among them
+    sim.note_published(512.0)  # 513: steps 0..255 dropped
     sim.offer(1, stamp_ns(255, 0.01), [0.0, 0.0], wall=1000.0)
     sim.offer(1, stamp_ns(256, 0.01), [0.0, 0.0], wall=1000.0)
     assert sim.latency == [1000.0, 1000.0 - 256]
@@ -389,13 +445,16 @@ def test_simulator_latency_table_keeps_the_newest_257_to_512_published_steps():
 
 def test_initial_state_from_file_checks_the_file(tmp_path):
     from knode_swarm_ros.core import save_trajectories
+
     states = np.random.default_rng(0).normal(size=(2, 3, 4, 4))
     path = tmp_path / 'init.npz'
     save_trajectories(path, states, 0.01, 'flock2d')
     z0, where, traj = initial_state_from_file(f'{path}:1', 'flock2d')
     assert np.array_equal(z0, states[1, 0]) and traj == 1
     for traj in (2, 3, 10):  # every index past the end, not only the first one
-        with pytest.raises(ConfigError, match=rf'trajectory {traj} does not exist \(.* holds 2, indices 0\.\.1\)'):
+        with pytest.raises(
+            ConfigError, match=rf'trajectory {traj} does not exist \(.* holds 2, indices 0\.\.1\)'
+        ):
             initial_state_from_file(f'{path}:{traj}', 'flock2d')
     with pytest.raises(ConfigError, match="'robots' = 5 but trajectory 0"):
         initial_state_from_file(str(path), 'flock2d', robots=5)
@@ -414,15 +473,21 @@ def test_frame_collector_progress_fill_and_grid():
     assert fc.add(1, 0, z2(9, 9)) == 'duplicate'
     assert fc.add(2, 5, z2(0, 0)) == 'unknown_id'
     assert fc.add(0, 5, z2(np.nan, 0)) == 'non_finite'
-    fc.add(0, 5, z2(0.5, 0))            # robot 1 lost at step 5
+    fc.add(0, 5, z2(0.5, 0))  # robot 1 lost at step 5
     fc.add(0, 10, z2(1.0, 0))
     fc.add(1, 10, z2(1.1, 0))
     assert fc.progress == 0 and fc.complete(10) and not fc.complete(5)
     states, info = fc.build(5)
     assert states.shape == (3, 2, 4)
     assert np.array_equal(states[1, 1], z2(1, 0))  # filled from the previous frame
-    assert info == {'first_step': 0, 'last_step': 10, 'frame_every': 5, 'frames': 3, 'filled_entries': 1,
-                    'incomplete_frames': 1}
+    assert info == {
+        'first_step': 0,
+        'last_step': 10,
+        'frame_every': 5,
+        'frames': 3,
+        'filled_entries': 1,
+        'incomplete_frames': 1,
+    }
     assert fc.infer_every() == 5
     fc.add(1, 5, z2(1.05, 0))
     assert fc.progress == 10
@@ -430,6 +495,7 @@ def test_frame_collector_progress_fill_and_grid():
 
 def test_swarm_metrics_match_the_core():
     from knode_swarm_ros.core import amd, avd
+
     frame = np.random.default_rng(1).normal(size=(5, 6))
     a, m = swarm_metrics(frame, 'boids3d')
     assert a == pytest.approx(avd(frame[:, 3:])) and m == pytest.approx(amd(frame[:, :3]))
@@ -439,6 +505,7 @@ def test_swarm_metrics_match_the_core():
 # --- launcher (no processes started) --------------------------------------------------------------
 def _swarm_main(argv, capsys):
     from knode_swarm_ros.nodes import swarm
+
     with pytest.raises(SystemExit) as exc:
         swarm.main(argv)
     return exc.value.code, capsys.readouterr()
@@ -450,15 +517,18 @@ def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsy
     assert code == 2 and '--robots must be in 1..10000' in cap.err and 'got 0' in cap.err
     code, cap = _swarm_main(['--policy', str(tmp_path / 'missing.pt'), '--record', out], capsys)
     assert code == 2 and 'missing.pt: no such file' in cap.err
-    code, cap = _swarm_main(['--scenario', 'boids3d', '--policy', str(untrained_policies['flock2d']), '--record', out],
-                            capsys)
+    code, cap = _swarm_main(
+        ['--scenario', 'boids3d', '--policy', str(untrained_policies['flock2d']), '--record', out], capsys
+    )
     assert code == 2 and 'is for flock2d' in cap.err
     code, cap = _swarm_main(['--record', str(tmp_path / 'run.txt'), '--ground-truth'], capsys)
     assert code == 2 and 'must end with .npz' in cap.err
     from knode_swarm_ros.core import save_trajectories
+
     save_trajectories(tmp_path / 'init.npz', np.zeros((1, 1, 3, 4)) + np.arange(3)[:, None], 0.01, 'flock2d')
-    code, cap = _swarm_main(['--ground-truth', '--robots', '4', '--init', str(tmp_path / 'init.npz'),
-                             '--record', out], capsys)
+    code, cap = _swarm_main(
+        ['--ground-truth', '--robots', '4', '--init', str(tmp_path / 'init.npz'), '--record', out], capsys
+    )
     assert code == 2 and '--robots 4 but --init' in cap.err and 'has 3 robots' in cap.err
     code, cap = _swarm_main(['--ground-truth', '--variant', 'nope', '--record', out], capsys)
     assert code == 2 and "--variant 'nope'" in cap.err
@@ -467,8 +537,19 @@ def test_launcher_refuses_bad_arguments_before_starting_anything(tmp_path, capsy
 
 def test_launcher_commands_carry_ros_args(tmp_path, untrained_policies):
     from knode_swarm_ros.nodes import swarm
-    args = swarm.build_parser().parse_args(['--robots', '3', '--policy', str(untrained_policies['boids3d']),
-                                            '--record', str(tmp_path / 'r.npz'), '--log-dir', str(tmp_path / 'logs')])
+
+    args = swarm.build_parser().parse_args(
+        [
+            '--robots',
+            '3',
+            '--policy',
+            str(untrained_policies['boids3d']),
+            '--record',
+            str(tmp_path / 'r.npz'),
+            '--log-dir',
+            str(tmp_path / 'logs'),
+        ]
+    )
     plan = swarm.plan_run(args)
     assert plan.scenario == 'boids3d' and plan.dt == pytest.approx(1 / 60) and plan.figure.suffix == '.png'
     assert swarm.DOMAIN_RANGE[0] <= plan.domain_id <= swarm.DOMAIN_RANGE[1]
@@ -478,6 +559,7 @@ def test_launcher_commands_carry_ros_args(tmp_path, untrained_policies):
     assert agent[1:3] == ['-m', 'knode_swarm_ros.nodes.agent'] and agent[3] == '--ros-args'
     assert 'id:=2' in agent
     import yaml
+
     params = yaml.safe_load(open(agent[agent.index('--params-file') + 1]))['/**']['ros__parameters']
     assert params['scenario'] == 'boids3d' and params['mode'] == 'lockstep' and params['use_sim_time']
     sim = yaml.safe_load(open(cmds['simulator'][-1]))['/**']['ros__parameters']
@@ -489,32 +571,61 @@ def test_launcher_commands_carry_ros_args(tmp_path, untrained_policies):
 
 def test_shm_cleanup_removes_only_new_unlocked_fastdds_files(tmp_path, monkeypatch):
     import fcntl
+
     from knode_swarm_ros.nodes import swarm
+
     monkeypatch.setattr(swarm.shm, 'SHM_DIR', tmp_path)  # the module that reads it
     (tmp_path / 'fastrtps_old').write_bytes(b'')
     (tmp_path / 'fastrtps_old_el').write_bytes(b'')
     (tmp_path / 'fastrtps_port7000').write_bytes(b'')  # an old orphan: not ours to judge
     before = swarm.shm_snapshot()
-    for name in ('fastrtps_0123456789abcdef', 'fastrtps_0123456789abcdef_el', 'fastrtps_port7411',
-                 'fastrtps_port7411_el', 'sem.fastrtps_port7411_mutex', 'fastrtps_1111111111111111',
-                 'fastrtps_1111111111111111_el', 'fastrtps_port7413', 'sem.fastrtps_port7413_mutex',
-                 'fastrtps_port7415', 'fastrtps_port7415_el', 'unrelated_file'):
+    for name in (
+        'fastrtps_0123456789abcdef',
+        'fastrtps_0123456789abcdef_el',
+        'fastrtps_port7411',
+        'fastrtps_port7411_el',
+        'sem.fastrtps_port7411_mutex',
+        'fastrtps_1111111111111111',
+        'fastrtps_1111111111111111_el',
+        'fastrtps_port7413',
+        'sem.fastrtps_port7413_mutex',
+        'fastrtps_port7415',
+        'fastrtps_port7415_el',
+        'unrelated_file',
+    ):
         (tmp_path / name).write_bytes(b'')
-    with open(tmp_path / 'fastrtps_1111111111111111_el', 'ab') as held, \
-            open(tmp_path / 'fastrtps_port7415_el', 'ab') as port:  # a live process's segment and port
+    with (
+        open(tmp_path / 'fastrtps_1111111111111111_el', 'ab') as held,
+        open(tmp_path / 'fastrtps_port7415_el', 'ab') as port,
+    ):  # a live process's segment and port
         fcntl.flock(held, fcntl.LOCK_EX)
         fcntl.flock(port, fcntl.LOCK_EX)
         removed = swarm.shm_cleanup(before)
-    assert sorted(removed) == ['fastrtps_0123456789abcdef', 'fastrtps_0123456789abcdef_el', 'fastrtps_port7411',
-                               'fastrtps_port7411_el', 'fastrtps_port7413', 'sem.fastrtps_port7411_mutex',
-                               'sem.fastrtps_port7413_mutex']
+    assert sorted(removed) == [
+        'fastrtps_0123456789abcdef',
+        'fastrtps_0123456789abcdef_el',
+        'fastrtps_port7411',
+        'fastrtps_port7411_el',
+        'fastrtps_port7413',
+        'sem.fastrtps_port7411_mutex',
+        'sem.fastrtps_port7413_mutex',
+    ]
     left = sorted(os.listdir(tmp_path))
-    assert left == ['fastrtps_1111111111111111', 'fastrtps_1111111111111111_el', 'fastrtps_old', 'fastrtps_old_el',
-                    'fastrtps_port7000', 'fastrtps_port7415', 'fastrtps_port7415_el', 'unrelated_file']
+    assert left == [
+        'fastrtps_1111111111111111',
+        'fastrtps_1111111111111111_el',
+        'fastrtps_old',
+        'fastrtps_old_el',
+        'fastrtps_port7000',
+        'fastrtps_port7415',
+        'fastrtps_port7415_el',
+        'unrelated_file',
+    ]
 
 
 def test_shipped_config_files_are_valid_parameter_files():
     import yaml
+
     root = os.path.join(os.path.dirname(__file__), '..', 'config')
     for scenario in ('flock2d', 'boids3d'):
         for node in ('agent', 'simulator'):
@@ -538,11 +649,11 @@ def test_simulator_latency_dedup_set_is_cleared_only_past_100000_samples():
             sim.offer(r, ns, u, wall=s + 0.5)
         sim.advance()
     assert len(sim.latency) == 100_000 and set(sim.latency) == {0.5}
-    sim.offer(n - 1, stamp_ns(99, 0.01), u, wall=200.0)   # the same pair again: no second sample
+    sim.offer(n - 1, stamp_ns(99, 0.01), u, wall=200.0)  # the same pair again: no second sample
     assert len(sim.latency) == 100_000
-    sim.offer(0, stamp_ns(100, 0.01), u, wall=200.0)      # step 100 was never published: no sample
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=200.0)  # step 100 was never published: no sample
     sim.note_published(300.0)
-    sim.offer(0, stamp_ns(100, 0.01), u, wall=300.25)     # the 100 001st pair: counted, the set cleared
+    sim.offer(0, stamp_ns(100, 0.01), u, wall=300.25)  # the 100 001st pair: counted, the set cleared
     assert len(sim.latency) == 100_001 and sim.latency[-1] == 0.25
 
 

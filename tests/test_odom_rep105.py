@@ -5,14 +5,20 @@ independently here, headings in every quadrant, and the message level: a foreign
 reports its real yaw and a body-frame twist decodes to the same state as this project's own
 Odometry, in both the rclpy message and the serialized fast path.
 """
+
 import math
 
 import numpy as np
 import pytest
 
-from knode_swarm_ros.nodes.odom_mapping import (TWIST_FRAMES, fields_to_state, rotate, rotate_inverse,
-                                                state_to_fields)
-from knode_swarm_ros.nodes.common import is_robot_frame, parse_robot_frame, robot_frame
+from knode_swarm_ros.logic.common import is_robot_frame, parse_robot_frame, robot_frame
+from knode_swarm_ros.logic.contract.rep105 import (
+    TWIST_FRAMES,
+    fields_to_state,
+    rotate,
+    rotate_inverse,
+    state_to_fields,
+)
 
 # Yaws in all four quadrants, on the axes between them, and near the branch cut at +-pi.
 YAWS = [0.0, 0.3, math.pi / 2, 2.0, math.pi, -2.5, -math.pi / 2, -0.4, 3.1, -3.1]
@@ -43,8 +49,9 @@ def test_body_twist_round_trips_for_headings_in_every_quadrant(yaw):
         # The decoding half of the mapping gives the world velocity back.
         z = fields_to_state((1.0, -2.0, 0.0), tuple(q), tuple(body), 'flock2d')
         assert np.allclose(z, [1.0, -2.0, v[0], v[1]], rtol=0, atol=1e-14)
-        assert np.array_equal(fields_to_state((1.0, -2.0, 0.0), tuple(q), tuple(v), 'flock2d', 'world'),
-                              [1.0, -2.0, v[0], v[1]])
+        assert np.array_equal(
+            fields_to_state((1.0, -2.0, 0.0), tuple(q), tuple(v), 'flock2d', 'world'), [1.0, -2.0, v[0], v[1]]
+        )
 
 
 def test_rotation_is_general_3d_and_handles_unnormalised_and_zero_quaternions():
@@ -52,14 +59,20 @@ def test_rotation_is_general_3d_and_handles_unnormalised_and_zero_quaternions():
     q = rng.normal(size=(50, 4))
     v = rng.normal(size=(50, 3))
     x, y, z, w = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    R = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
+    R = np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        1,
+    )
     assert np.allclose(rotate(q, v), np.einsum('nij,nj->ni', R, v), atol=1e-13)
     assert np.allclose(rotate_inverse(q, rotate(q, v)), v, atol=1e-13)
-    assert np.array_equal(rotate([0.0, 0.0, 0.0, 0.0], v[0]), v[0])   # zero quaternion = identity
+    assert np.array_equal(rotate([0.0, 0.0, 0.0, 0.0], v[0]), v[0])  # zero quaternion = identity
     # The plain-float path the decoder uses agrees with the vectorised one.
-    from knode_swarm_ros.nodes.odom_mapping import _rotate_one
+    from knode_swarm_ros.logic.contract.rep105 import _rotate_one
+
     for qi, vi in zip(q[:10], v[:10]):
         assert np.allclose(_rotate_one(qi, vi), rotate(qi, vi), atol=1e-14)
 
@@ -70,11 +83,11 @@ def test_flock2d_mapping_is_exact_and_boids3d_twist_is_in_the_body_frame():
         z = rng.normal(size=4) * 10 ** rng.uniform(-8, 3)
         fields = state_to_fields(z, 'flock2d')
         assert fields[1] == (0.0, 0.0, 0.0, 1.0)
-        assert np.array_equal(fields_to_state(*fields, 'flock2d'), z)     # bit for bit: parity needs it
-    h = np.array([-0.6, 0.0, 0.8])                                          # heading with h_x < 0
+        assert np.array_equal(fields_to_state(*fields, 'flock2d'), z)  # bit for bit: parity needs it
+    h = np.array([-0.6, 0.0, 0.8])  # heading with h_x < 0
     vel = 2.5 * h
     _, q, lin = state_to_fields(np.concatenate([[1.0, 2.0, 3.0], h]), 'boids3d', vel)
-    assert np.allclose(lin, [2.5, 0.0, 0.0], atol=1e-14)                   # forward along the body +x
+    assert np.allclose(lin, [2.5, 0.0, 0.0], atol=1e-14)  # forward along the body +x
     assert np.allclose(rotate(q, lin), vel, atol=1e-14)
     with pytest.raises(ValueError, match='twist_frame'):
         fields_to_state((0, 0, 0), (0, 0, 0, 1), (1, 0, 0), 'flock2d', 'odom')
@@ -83,30 +96,43 @@ def test_flock2d_mapping_is_exact_and_boids3d_twist_is_in_the_body_frame():
 
 def test_child_frames_name_their_robot():
     assert robot_frame(3) == 'robot_3/base_link'
-    for frame, rid in (('robot_3/base_link', 3), ('robot_3', 3), ('robot_12/base_footprint', 12),
-                       ('robot_x', None), ('base_link', None), ('', None)):
+    for frame, rid in (
+        ('robot_3/base_link', 3),
+        ('robot_3', 3),
+        ('robot_12/base_footprint', 12),
+        ('robot_x', None),
+        ('base_link', None),
+        ('', None),
+    ):
         assert parse_robot_frame(frame) == rid
     assert is_robot_frame('', 3) and is_robot_frame('robot_3/base_link', 3) and is_robot_frame('robot_3', 3)
     assert not is_robot_frame('robot_4/base_link', 3) and not is_robot_frame('base_link', 3)
 
 
 def test_foreign_driver_with_real_yaw_decodes_like_our_own_odometry():
-    import nav_msgs.msg  # noqa: F401,E402  (a broken install must fail, not skip)
+    import nav_msgs.msg  # noqa: F401  (a broken install must fail, not skip)
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
-    from knode_swarm_ros.nodes.conversions import odom_from_cdr, odom_to_cdr, odom_to_state, state_to_odom
+
+    from knode_swarm_ros.nodes.common.conversions import (
+        odom_from_cdr,
+        odom_to_cdr,
+        odom_to_state,
+        state_to_odom,
+    )
+
     rng = np.random.default_rng(5)
     for yaw in YAWS:
         z = np.array([*rng.normal(size=2) * 4, *rng.normal(size=2)])
         ours = odom_to_state(state_to_odom(2, 7, z, 'flock2d'), 'flock2d')
-        foreign = Odometry()                                   # e.g. a holonomic base facing `yaw`
+        foreign = Odometry()  # e.g. a holonomic base facing `yaw`
         foreign.header.frame_id, foreign.child_frame_id = 'world', 'robot_2/base_footprint'
         foreign.pose.pose.position.x, foreign.pose.pose.position.y = z[0], z[1]
         o = foreign.pose.pose.orientation
         o.z, o.w = math.sin(yaw / 2), math.cos(yaw / 2)
         lin = foreign.twist.twist.linear
         lin.x, lin.y, _ = _yaw_body(yaw, [z[2], z[3], 0.0])
-        foreign.twist.twist.angular.z = 0.7                    # a turning robot: angular is not velocity
+        foreign.twist.twist.angular.z = 0.7  # a turning robot: angular is not velocity
         assert np.allclose(odom_to_state(foreign, 'flock2d'), ours, rtol=0, atol=1e-14)
         ns, frame, got = odom_from_cdr(serialize_message(foreign), 'flock2d')
         assert frame == 'robot_2/base_footprint' and np.allclose(got, ours, rtol=0, atol=1e-14)

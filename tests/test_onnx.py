@@ -9,6 +9,7 @@
 * offline rollouts on onnxruntime stay within 1e-4 of TorchScript's over 300 steps;
 * the robot path (policy loading, the agent logic, the agent node module) never imports torch.
 """
+
 import json
 import os
 import shutil
@@ -18,16 +19,24 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import onnx
+import onnxruntime
 import pytest
+import torch
 
-import torch  # noqa: F401,E402  (a broken install must fail, not skip)
-import onnxruntime  # noqa: F401,E402  (a broken install must fail, not skip)
-import onnx  # noqa: F401,E402  (a broken install must fail, not skip)
-from knode_swarm_ros.core import (DEFAULTS, KNODEPolicy, PolicyConfig, PolicyError, export_policy,  # noqa: E402
-                                  load_policy, load_runtime, rollout, shipped_policy_path)
-from knode_swarm_ros.core.policy_runtime import load_onnx_policy  # noqa: E402
-from training.export_onnx import main as export_main  # noqa: E402
-from training.onnx_twin import check_inputs, compare, export_onnx  # noqa: E402
+from knode_swarm_ros.core import (
+    DEFAULTS,
+    KNODEPolicy,
+    PolicyConfig,
+    PolicyError,
+    export_policy,
+    load_policy,
+    load_runtime,
+    rollout,
+    shipped_policy_path,
+)
+from training.export_onnx import main as export_main
+from training.learning.onnx_twin import check_inputs, compare, export_onnx
 
 torch.set_num_threads(1)
 REPO = Path(__file__).resolve().parents[1]
@@ -67,7 +76,7 @@ def test_twin_equals_torchscript_on_the_input_table(twins, scenario):
     # the table really exercises the knowledge terms: saturation, wall pushes, repulsion
     Y, mask = table['coincident robots']  # first half exactly on top (r = 0: no push), then 1e-4 apart
     u = ox(Y, mask)
-    assert np.all(np.isfinite(u)) and np.all(np.abs(u[len(u) // 2:]).max(axis=1) == ts.command_limit)
+    assert np.all(np.isfinite(u)) and np.all(np.abs(u[len(u) // 2 :]).max(axis=1) == ts.command_limit)
     if scenario == 'boids3d':
         assert np.abs(ts(*table['walls'])).max() == ts.command_limit
 
@@ -87,13 +96,14 @@ def test_batched_call_equals_one_row_at_a_time(twins):
     Y, mask = check_inputs(ox.meta, seed=2)['random']
     batch = ox(Y, mask)
     assert batch.shape == (len(Y), 3) and batch.dtype == np.float64
-    rows = np.concatenate([ox(Y[i:i + 1], mask[i:i + 1].astype(bool)) for i in range(len(Y))])
+    rows = np.concatenate([ox(Y[i : i + 1], mask[i : i + 1].astype(bool)) for i in range(len(Y))])
     np.testing.assert_allclose(rows, batch, rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize('scenario,robots', [('flock2d', 10), ('boids3d', 10)])
 def test_onnx_rollout_stays_within_1e_4_of_torchscript_over_300_steps(twins, scenario, robots):
-    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    from knode_swarm_ros.logic.simulator.swarm_sim import initial_state
+
     ts, ox = load_runtime(twins[scenario], 'torchscript'), load_runtime(twins[scenario], 'onnxruntime')
     z0, _ = initial_state(scenario, robots, seed=4)
     args = (300, scenario, ts.d_cr, ts.k, ts.tau, ts.dt)
@@ -117,9 +127,19 @@ class _Foreign(torch.nn.Module):
 @pytest.mark.filterwarnings('ignore::DeprecationWarning')  # torch.jit: how others still write policies
 def test_a_foreign_policy_file_exports_and_runs(tmp_path, capsys):
     torch.manual_seed(0)
-    meta = {'format': 'knode-policy/1', 'scenario': 'flock2d', 'state_dim': 4, 'command_dim': 2,
-            'command': 'acceleration', 'k': 5, 'd_cr': 2.5, 'tau': 2, 'dt': 0.02,
-            'state_layout': ['px', 'py', 'vx', 'vy'], 'author': 'someone else'}
+    meta = {
+        'format': 'knode-policy/1',
+        'scenario': 'flock2d',
+        'state_dim': 4,
+        'command_dim': 2,
+        'command': 'acceleration',
+        'k': 5,
+        'd_cr': 2.5,
+        'tau': 2,
+        'dt': 0.02,
+        'state_layout': ['px', 'py', 'vx', 'vy'],
+        'author': 'someone else',
+    }
     pt = tmp_path / 'theirs.pt'
     torch.jit.save(torch.jit.script(_Foreign()), str(pt), _extra_files={'knode.json': json.dumps(meta)})
     assert export_main([str(pt)]) == 0
@@ -144,12 +164,12 @@ def test_stale_and_mismatched_twins_are_refused(tmp_path, twins):
     # same knode.json, other weights: the recorded SHA-256 of the .pt differs
     stale = _policy(tmp_path, 'flock2d', seed=4)
     shutil.copy(twins['flock2d'].with_suffix('.onnx'), stale.with_suffix('.onnx'))
-    with pytest.raises(PolicyError, match=f"{stale.with_suffix('.onnx')}.*another version of {stale}"):
+    with pytest.raises(PolicyError, match=f'{stale.with_suffix(".onnx")}.*another version of {stale}'):
         load_runtime(stale)
     # another knode.json (d_cr): refused naming the key
     other = _policy(tmp_path, 'flock2d', seed=3, name='other.pt', d_cr=4.0)
     shutil.copy(twins['flock2d'].with_suffix('.onnx'), other.with_suffix('.onnx'))
-    with pytest.raises(PolicyError, match=r"other\.onnx.*differs from that of its TorchScript policy.*d_cr"):
+    with pytest.raises(PolicyError, match=r'other\.onnx.*differs from that of its TorchScript policy.*d_cr'):
         load_runtime(other, 'onnxruntime')
     # a required value the caller expects
     with pytest.raises(PolicyError, match="onnx.*'k' is 6 but 5 was required"):
@@ -157,7 +177,6 @@ def test_stale_and_mismatched_twins_are_refused(tmp_path, twins):
 
 
 def test_a_twin_without_metadata_is_refused(tmp_path, twins):
-    import onnx
     model = onnx.load(str(twins['boids3d'].with_suffix('.onnx')))
     del model.metadata_props[:]
     bare = tmp_path / 'bare.onnx'
@@ -187,46 +206,59 @@ def test_export_cli_bad_file_exits_2(tmp_path, capsys):
 
 
 def test_onnxruntime_missing_gives_a_clear_error(monkeypatch, twins):
-    from knode_swarm_ros.nodes.agent import load_agent_policy
-    from knode_swarm_ros.nodes.common import ConfigError
+    from knode_swarm_ros.logic.common import ConfigError
+    from knode_swarm_ros.nodes.agent.node import load_agent_policy
+
     monkeypatch.setitem(sys.modules, 'onnxruntime', None)  # import onnxruntime now raises ImportError
     with pytest.raises(PolicyError, match='needs the onnxruntime package, which is not installed'):
         load_runtime(twins['flock2d'], 'onnxruntime')
     assert load_runtime(twins['flock2d'], 'auto').backend == 'torchscript'  # auto falls back
-    with pytest.raises(ConfigError, match=r"parameter 'policy' \(policy_runtime onnxruntime\).*onnxruntime package"):
+    with pytest.raises(
+        ConfigError, match=r"parameter 'policy' \(policy_runtime onnxruntime\).*onnxruntime package"
+    ):
         load_agent_policy(str(twins['flock2d']), '', 0, 0.0, -1, 0.0, 'onnxruntime')
-    with pytest.raises(PolicyError, match="policy_runtime 'tensorrt' is not one of auto, torchscript, onnxruntime"):
+    with pytest.raises(
+        PolicyError, match="policy_runtime 'tensorrt' is not one of auto, torchscript, onnxruntime"
+    ):
         load_runtime(twins['flock2d'], 'tensorrt')
 
 
 def test_onnxruntime_without_a_twin_names_the_missing_file(tmp_path):
     pt = _policy(tmp_path, 'flock2d')
-    with pytest.raises(PolicyError, match=f"needs its ONNX twin {pt.with_suffix('.onnx')}.*export_onnx"):
+    with pytest.raises(PolicyError, match=f'needs its ONNX twin {pt.with_suffix(".onnx")}.*export_onnx'):
         load_runtime(pt, 'onnxruntime')
     assert load_runtime(pt).backend == 'torchscript'  # auto without a twin
 
 
 # --- the robot path never imports torch ---------------------------------------------------------
 # Run in a fresh interpreter whose import of torch fails, as on a robot without it.
-_NO_TORCH = textwrap.dedent('''
+_NO_TORCH = textwrap.dedent("""
     import sys
     class _NoTorch:
         def find_spec(self, name, path=None, target=None):
             if name == 'torch' or name.startswith('torch.'):
                 raise ImportError('torch is blocked in this process (robot without torch)')
     sys.meta_path.insert(0, _NoTorch())
-''')
+""")
 
 
 def _run_without_torch(code, *args, timeout=120):
     env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join([str(REPO)] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
-    return subprocess.run([sys.executable, '-c', _NO_TORCH + textwrap.dedent(code), *map(str, args)], env=env,
-                          capture_output=True, text=True, timeout=timeout, cwd=REPO)
+    env['PYTHONPATH'] = os.pathsep.join(
+        [str(REPO)] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p]
+    )
+    return subprocess.run(
+        [sys.executable, '-c', _NO_TORCH + textwrap.dedent(code), *map(str, args)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+    )
 
 
 def test_the_robot_path_never_imports_torch(twins):
-    code = '''
+    code = """
         import json, sys
         import numpy as np
         try:
@@ -235,8 +267,8 @@ def test_the_robot_path_never_imports_torch(twins):
             pass
         else:
             raise SystemExit('the torch blocker does not work')
-        from knode_swarm_ros.nodes import agent  # the node module: rclpy, messages, logic
-        from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
+        from knode_swarm_ros.nodes.agent import node as agent  # the node module: rclpy, messages, logic
+        from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
         policy = agent.load_agent_policy(sys.argv[1], '', 0, 0.0, -1, 0.0, 'auto')
         logic = AgentLogic(AgentConfig(1, [0, 1, 2], 'lockstep'), policy)
         states = json.loads(sys.argv[2])
@@ -245,7 +277,7 @@ def test_the_robot_path_never_imports_torch(twins):
         cmd = logic.lockstep_poll(0.0)
         print(json.dumps({'backend': policy.backend, 'u': cmd.value.tolist(), 'neighbours': cmd.neighbours,
                           'torch': [m for m in sys.modules if m == 'torch' or m.startswith('torch.')]}))
-    '''
+    """
     states = [[0.0, 0.0, 0.1, 0.0], [0.5, 0.2, 0.0, 0.3], [1.5, -1.0, -0.2, 0.1]]
     proc = _run_without_torch(code, twins['flock2d'], json.dumps(states))
     assert proc.returncode == 0, proc.stderr
@@ -253,37 +285,59 @@ def test_the_robot_path_never_imports_torch(twins):
     assert out['backend'] == 'onnxruntime' and out['torch'] == [] and out['neighbours'] == 2
     # the same command as the TorchScript policy's (row 1 of the parity batch)
     from knode_swarm_ros.core import neighbour_matrix
+
     ts = load_policy(twins['flock2d'])
     Y, mask = neighbour_matrix(np.array(states), np.array(states), 2, ts.d_cr, ts.k)
     np.testing.assert_allclose(out['u'], ts(Y, mask)[1], rtol=0, atol=1e-5)
 
 
 def test_the_torchscript_runtime_without_torch_says_what_to_do(twins):
-    proc = _run_without_torch('''
+    proc = _run_without_torch(
+        """
         import sys
         from knode_swarm_ros.core import PolicyError, load_runtime
         try:
             load_runtime(sys.argv[1], 'torchscript')
         except PolicyError as exc:
             print(exc)
-    ''', twins['flock2d'])
+    """,
+        twins['flock2d'],
+    )
     assert proc.returncode == 0, proc.stderr
-    assert 'the TorchScript runtime needs torch' in proc.stdout and 'policy_runtime onnxruntime' in proc.stdout
+    assert (
+        'the TorchScript runtime needs torch' in proc.stdout and 'policy_runtime onnxruntime' in proc.stdout
+    )
 
 
 # --- offline rollout option and packaging ----------------------------------------------
 def test_rollout_cli_runs_the_twin_on_request(tmp_path, twins):
     from knode_swarm_ros.core import load_trajectories, save_trajectories
-    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    from knode_swarm_ros.logic.simulator.swarm_sim import initial_state
     from training.rollout import main as rollout_main
+
     z0, _ = initial_state('boids3d', 6, seed=1)
     init = tmp_path / 'init.npz'
     save_trajectories(init, z0[None, None], 1 / 60, 'boids3d')
     out = {}
     for runtime in ('torchscript', 'onnxruntime'):
         path = tmp_path / f'{runtime}.npz'
-        assert rollout_main(['--policy', str(twins['boids3d']), '--init', str(init), '--steps', '50',
-                             '--out', str(path), '--runtime', runtime]) == 0
+        assert (
+            rollout_main(
+                [
+                    '--policy',
+                    str(twins['boids3d']),
+                    '--init',
+                    str(init),
+                    '--steps',
+                    '50',
+                    '--out',
+                    str(path),
+                    '--runtime',
+                    runtime,
+                ]
+            )
+            == 0
+        )
         data = load_trajectories(path)
         assert data.meta['runtime'] == runtime
         out[runtime] = data.states
@@ -301,5 +355,4 @@ def test_the_robot_requirements_need_no_torch():
     assert set(full) == {'torch'} and '-r requirements-robot.txt' in (REPO / 'requirements.txt').read_text()
     setup = (REPO / 'setup.py').read_text()
     assert f"'robot': ['onnxruntime=={robot['onnxruntime']}']" in setup and "'policies/*.onnx'" in setup
-    import onnxruntime
     assert onnxruntime.__version__ == robot['onnxruntime']

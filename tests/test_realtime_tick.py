@@ -5,17 +5,17 @@ live neighbours' states of step s - tau are in (or a grace has passed), at most 
 control period; the control timer only stops a robot whose own state went stale. The lone
 agent and the hosting process run this through the same AgentLogic.
 """
+
 import random
 
 import numpy as np
 import pytest
 
 from knode_swarm_ros.core import neighbour_matrix_single
-from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import ConfigError, stamp_ns
-from knode_swarm_ros.nodes.hearing import Hearing
-from knode_swarm_ros.nodes.hosted_logic import HostedAgents
+from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.logic.agent.hearing import Hearing
+from knode_swarm_ros.logic.agent.hosted import HostedAgents
+from knode_swarm_ros.logic.common import ConfigError, stamp_ns
 
 SEC = 1_000_000_000
 DT = 0.05  # a 20 Hz policy
@@ -105,7 +105,8 @@ def test_ticks_are_limited_to_the_control_rate_with_a_quarter_period_of_stamp_ji
 
 
 def test_faster_odometry_gives_control_rate_ticks_on_average():
-    from knode_swarm_ros.nodes.realtime_tick import TickOnState
+    from knode_swarm_ros.logic.agent.realtime_tick import TickOnState
+
     ticks = TickOnState(0.05, 0.025)  # 20 Hz control
     ms = 1_000_000
     opened = [t for t in range(0, 1000, 20) if ticks.own_state(t // 50, t * ms, 0.0)]  # 50 Hz odometry, 1 s
@@ -113,7 +114,9 @@ def test_faster_odometry_gives_control_rate_ticks_on_average():
     jittered = TickOnState(0.05, 0.025)  # 20 Hz odometry with +-10 ms jitter: every state ticks
     assert all(jittered.own_state(k, (50 * k + (10 if k % 2 else -10) + 10) * ms, 0.0) for k in range(40))
     assert not jittered.own_state(39, 1980 * ms, 0.0)  # a second state 10 ms after the last tick
-    assert jittered.own_state(80, 4000 * ms, 0.0) and jittered.next_ns == 4050 * ms  # after a silence: a new grid
+    assert (
+        jittered.own_state(80, 4000 * ms, 0.0) and jittered.next_ns == 4050 * ms
+    )  # after a silence: a new grid
 
 
 def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed():
@@ -138,25 +141,25 @@ def test_a_late_neighbour_is_taken_at_its_newest_state_once_the_grace_has_passed
 def test_before_the_clock_runs_every_robot_is_awaited_and_a_late_state_reopens_the_tick():
     policy = SumPolicy()
     logic = logic_for(policy)
-    logic.receive(0, 0, frame(0)[0], 0, wall=0.0)       # the simulator's initial state, clock not running
+    logic.receive(0, 0, frame(0)[0], 0, wall=0.0)  # the simulator's initial state, clock not running
     logic.receive(1, 0, frame(0)[1], 0, wall=0.0)
-    assert logic.realtime_poll(0, 0.0) is None          # robots 2 and 3 never heard: awaited all the same
-    first = logic.realtime_poll(0, 1.0)                 # the grace passed
+    assert logic.realtime_poll(0, 0.0) is None  # robots 2 and 3 never heard: awaited all the same
+    first = logic.realtime_poll(0, 1.0)  # the grace passed
     assert first.step == 0 and first.neighbours == 1 and logic.counters['late_ticks'] == 1
-    logic.receive(2, 0, frame(0)[2], 0, wall=1.1)       # late: the tick opens again, still missing robot 3
+    logic.receive(2, 0, frame(0)[2], 0, wall=1.1)  # late: the tick opens again, still missing robot 3
     assert logic.realtime_poll(0, 1.1) is None
     logic.receive(3, 0, frame(0)[3], 0, wall=1.2)
-    again = logic.realtime_poll(0, 1.2)                 # complete now: computed again, same stamp
+    again = logic.realtime_poll(0, 1.2)  # complete now: computed again, same stamp
     assert again.step == 0 and again.stamp_ns == 0 and again.neighbours == 3
     assert logic.receive(0, 0, frame(0)[0], 0, wall=2.0) == 'duplicate'
-    assert logic.realtime_poll(0, 9.0) is None          # complete: no third computation
+    assert logic.realtime_poll(0, 9.0) is None  # complete: no third computation
     assert logic.counters['commands'] == 2 and logic.counters['late_ticks'] == 1
 
 
 def test_a_repeated_own_state_reopens_a_tick_computed_with_states_missing():
     logic = logic_for(SumPolicy())
     logic.receive(0, 0, frame(0)[0], 0, wall=0.0)
-    assert logic.realtime_poll(0, 1.0).neighbours == 0   # alone, at the grace
+    assert logic.realtime_poll(0, 1.0).neighbours == 0  # alone, at the grace
     assert logic.receive(0, 0, frame(0)[0], 0, wall=1.5) == 'duplicate'  # re-published while waiting
     assert logic.realtime_poll(0, 1.5) is None
     assert logic.realtime_poll(0, 9.5) is None  # a re-opened tick has no grace: computed only when complete
@@ -261,12 +264,17 @@ def test_hosted_robots_tick_on_their_own_states_like_lone_agents_in_one_call_per
     for rid in hosted:
         want = list(range(12)) if rid == 2 else list(range(10)) + [9, 10, 11]
         assert [c.step for c in got_host[rid]] == want
-        assert [(c.step, c.stamp_ns, c.neighbours) for c in got_host[rid]] == \
-            [(c.step, c.stamp_ns, c.neighbours) for c in got_lone[rid]]
-        assert np.allclose([c.value for c in got_host[rid]], [c.value for c in got_lone[rid]], rtol=1e-12, atol=1e-12)
+        assert [(c.step, c.stamp_ns, c.neighbours) for c in got_host[rid]] == [
+            (c.step, c.stamp_ns, c.neighbours) for c in got_lone[rid]
+        ]
+        assert np.allclose(
+            [c.value for c in got_host[rid]], [c.value for c in got_lone[rid]], rtol=1e-12, atol=1e-12
+        )
         assert host.logics[rid].counters == lone[rid].counters
         assert host.logics[rid].counters['late_ticks'] == (2 if rid != 2 else 1)
-    assert host.calls - calls0 == 12  # the hosted robots of a step fall due together: one call each (+ step 9's late)
+    assert (
+        host.calls - calls0 == 12
+    )  # the hosted robots of a step fall due together: one call each (+ step 9's late)
 
 
 def test_live_count_kept_up_to_date_equals_a_fresh_count():
@@ -286,7 +294,8 @@ def test_live_count_kept_up_to_date_equals_a_fresh_count():
 
 
 def test_rate_study_counts_the_steps_a_recording_tracks_the_offline_rollout():
-    from training.rate_study import TRACK_TOL, tracked_steps
+    from training.studies.rate_study import TRACK_TOL, tracked_steps
+
     rng = np.random.default_rng(0)
     pred = rng.normal(size=(50, 4, 4))
     assert tracked_steps(pred + rng.normal(scale=1e-7, size=pred.shape), pred) == 50  # float32 rounding
@@ -314,7 +323,7 @@ def test_a_hosting_process_computes_every_waiting_robot_when_the_first_grace_pas
 
 
 def test_grace_arm_resets_only_when_a_wait_starts_and_cancels_when_it_ends():
-    from knode_swarm_ros.nodes.realtime_tick import GraceArm
+    from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
 
     class Timer:
         def __init__(self):

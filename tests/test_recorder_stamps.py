@@ -1,9 +1,10 @@
 """Issue 10, item 4: the recorder applies the agents' checks to every stamp (age, step grid,
 finiteness), so a hostile or stale message can neither invent frames nor lose the recording."""
+
 import numpy as np
 import pytest
 
-from knode_swarm_ros.nodes.recorder_logic import FrameCollector, swarm_metrics
+from knode_swarm_ros.logic.recorder import FrameCollector, swarm_metrics
 
 DT = 0.01
 NS = 1_000_000_000
@@ -54,8 +55,10 @@ def test_without_a_clock_the_newest_stamp_is_the_reference():
     assert fc.build(1)[0].shape[0] == 101
 
 
-@pytest.mark.parametrize('now_ns, expected', [(None, 'accepted'), (0, 'accepted'), (-NS, 'accepted'),
-                                              (1, 'too_future'), (int(9.6 * NS), 'accepted')])
+@pytest.mark.parametrize(
+    'now_ns, expected',
+    [(None, 'accepted'), (0, 'accepted'), (-NS, 'accepted'), (1, 'too_future'), (int(9.6 * NS), 'accepted')],
+)
 def test_any_positive_clock_reading_is_a_clock(now_ns, expected):
     """A state 10 s ahead of an empty recorder: a clock (now_ns > 0, one nanosecond included)
     allows future_tolerance 0.5 s ahead; without one (None or <= 0) nothing is there to compare."""
@@ -90,17 +93,36 @@ def test_every_counter_is_the_number_of_times_its_outcome_was_returned():
     """Each message lands in exactly one counter, starting from zero (mutation survivors: a
     counter starting at -1 went unnoticed)."""
     from collections import Counter
+
     fc = FrameCollector('flock2d', 3, DT)
     assert set(fc.counters.values()) == {0}
     now = 50 * int(DT * NS)
     stamp = lambda s: int(round(s * DT * NS))  # noqa: E731
-    messages = [(0, stamp(50), np.zeros(4)), (1, stamp(50), np.ones(4)), (0, stamp(50), np.ones(4)),
-                (2, stamp(49), np.zeros(4)), (7, stamp(50), np.zeros(4)), (1, stamp(50), np.zeros(3)),
-                (2, stamp(50), np.array([0, np.nan, 0, 0])), (2, -NS, np.zeros(4)),
-                (2, now + 10 * NS, np.zeros(4)), (2, stamp(50) + int(DT * NS) // 2, np.zeros(4))]
+    messages = [
+        (0, stamp(50), np.zeros(4)),
+        (1, stamp(50), np.ones(4)),
+        (0, stamp(50), np.ones(4)),
+        (2, stamp(49), np.zeros(4)),
+        (7, stamp(50), np.zeros(4)),
+        (1, stamp(50), np.zeros(3)),
+        (2, stamp(50), np.array([0, np.nan, 0, 0])),
+        (2, -NS, np.zeros(4)),
+        (2, now + 10 * NS, np.zeros(4)),
+        (2, stamp(50) + int(DT * NS) // 2, np.zeros(4)),
+    ]
     returned = Counter(fc.receive(r, t, z, now) for r, t, z in messages)
-    assert returned == Counter({'accepted': 3, 'duplicate': 1, 'unknown_id': 1, 'bad_size': 1,
-                                'non_finite': 1, 'too_old': 1, 'too_future': 1, 'off_grid': 1})
+    assert returned == Counter(
+        {
+            'accepted': 3,
+            'duplicate': 1,
+            'unknown_id': 1,
+            'bad_size': 1,
+            'non_finite': 1,
+            'too_old': 1,
+            'too_future': 1,
+            'off_grid': 1,
+        }
+    )
     assert fc.counters == {k: returned.get(k, 0) for k in fc.counters}
 
 

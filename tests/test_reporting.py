@@ -1,15 +1,16 @@
 """The nodes' shared log throttle and JSON report (nodes/reporting.py), without ROS."""
+
 import json
 import os
 
-from knode_swarm_ros.nodes.reporting import Throttle, throttled_log, write_json_report
+from knode_swarm_ros.logic.reporting import Throttle, throttled_log, write_json_report
 
 
 def test_throttle_lets_each_key_log_once_per_period():
     t = Throttle(5.0, clock=lambda: 0.0)
     assert t.ready('a', 100.0) and not t.ready('a', 104.9) and t.ready('b', 104.9)
     assert t.ready('a', 105.0) and not t.ready('a', 109.0)
-    assert t.ready('c')                                    # the clock's time: 0.0, first time for c
+    assert t.ready('c')  # the clock's time: 0.0, first time for c
     assert not t.ready('c')
 
 
@@ -39,6 +40,6 @@ def test_write_json_report_replaces_the_file_whole_and_skips_an_empty_path(tmp_p
     write_json_report(str(path), {'a': 1})
     write_json_report(str(path), {'b': 2, 'p': path}, indent=1, default=str)
     assert json.loads(path.read_text()) == {'b': 2, 'p': str(path)}
-    assert os.listdir(path.parent) == ['report.json']     # no temporary file left
-    write_json_report('', {'c': 3})                         # no report asked for: nothing written
+    assert os.listdir(path.parent) == ['report.json']  # no temporary file left
+    write_json_report('', {'c': 3})  # no report asked for: nothing written
     assert os.listdir(path.parent) == ['report.json']

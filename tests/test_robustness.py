@@ -1,15 +1,16 @@
-"""training.robustness and training.rollout's link options: the hand-written baseline is the
+"""training.studies.robustness and training.rollout's link options: the hand-written baseline is the
 Tanner law, the study writes what it says, bad input exits 2."""
+
 import json
 
 import numpy as np
 import pytest
 
+from knode_swarm_ros.core import load_trajectories, save_trajectories
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.network import neighbour_matrix
-from knode_swarm_ros.core import load_trajectories, save_trajectories
-from training import robustness
 from training import rollout as rollout_cli
+from training.studies import robustness
 
 
 def test_local_tanner_with_every_robot_in_view_is_the_global_law():
@@ -30,8 +31,20 @@ def test_interval_is_the_t_interval():
 
 def test_study_writes_results_and_figure(tmp_path, untrained_policies):
     out = tmp_path / 'rob'
-    rc = robustness.main(['--policy', str(untrained_policies['flock2d']), '--out', str(out), '--starts', '2',
-                          '--steps', '20', '--delay-unit', '2'])
+    rc = robustness.main(
+        [
+            '--policy',
+            str(untrained_policies['flock2d']),
+            '--out',
+            str(out),
+            '--starts',
+            '2',
+            '--steps',
+            '20',
+            '--delay-unit',
+            '2',
+        ]
+    )
     assert rc == 0 and (out / 'robustness.png').stat().st_size > 0
     res = json.loads((out / 'results.json').read_text())
     assert len(res['rows']) == 2 * 10 and res['starts'] == 2
@@ -39,7 +52,10 @@ def test_study_writes_results_and_figure(tmp_path, untrained_policies):
     assert all(r['link']['lost'] > 0 for r in lossy)
     assert all(r['link']['lost'] == 0 for r in res['rows'] if r['loss'] == 0)
     assert all(r['avd']['lo'] <= r['avd']['mean'] <= r['avd']['hi'] for r in res['rows'])
-    assert robustness.main(['--policy', str(untrained_policies['flock2d']), '--out', str(out), '--starts', '1']) == 2
+    assert (
+        robustness.main(['--policy', str(untrained_policies['flock2d']), '--out', str(out), '--starts', '1'])
+        == 2
+    )
     assert robustness.main(['--policy', str(tmp_path / 'missing.pt'), '--out', str(out)]) == 2
 
 
@@ -50,10 +66,39 @@ def test_rollout_cli_link_options(tmp_path, untrained_policies):
     pol = str(untrained_policies['flock2d'])
     plain, lossy = tmp_path / 'a.npz', tmp_path / 'b.npz'
     assert rollout_cli.main(['--policy', pol, '--init', str(init), '--steps', '30', '--out', str(plain)]) == 0
-    assert rollout_cli.main(['--policy', pol, '--init', str(init), '--steps', '30', '--out', str(lossy),
-                             '--link-loss', '0.5', '--link-delay-steps', '2', '--link-range', '3', '--seed', '4']) == 0
+    assert (
+        rollout_cli.main(
+            [
+                '--policy',
+                pol,
+                '--init',
+                str(init),
+                '--steps',
+                '30',
+                '--out',
+                str(lossy),
+                '--link-loss',
+                '0.5',
+                '--link-delay-steps',
+                '2',
+                '--link-range',
+                '3',
+                '--seed',
+                '4',
+            ]
+        )
+        == 0
+    )
     a, b = load_trajectories(plain), load_trajectories(lossy)
-    assert 'link' not in a.meta and b.meta['link']['lost'] > 0 and b.meta['link']['delays'] == {'2': b.meta['link']['delivered']}
+    assert (
+        'link' not in a.meta
+        and b.meta['link']['lost'] > 0
+        and b.meta['link']['delays'] == {'2': b.meta['link']['delivered']}
+    )
     assert not np.array_equal(a.states, b.states)
-    assert rollout_cli.main(['--policy', pol, '--init', str(init), '--steps', '3', '--out', str(lossy),
-                             '--link-loss', '1.5']) == 2
+    assert (
+        rollout_cli.main(
+            ['--policy', pol, '--init', str(init), '--steps', '3', '--out', str(lossy), '--link-loss', '1.5']
+        )
+        == 2
+    )

@@ -8,13 +8,14 @@ replaced by a ``pause()`` through ``ctypes.PyDLL``: native code that keeps the G
 calls do, so neither a Python signal handler nor a Python thread can end it. The tests wait only
 for polled conditions (log lines, exit) with generous deadlines; no timing is asserted.
 """
+
 import signal
 
 import numpy as np
 import pytest
-
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
 from node_processes import start, stop, wait_for
+
 from knode_swarm_ros.core import load_trajectories
 from knode_swarm_ros.nodes.swarm.shm import shm_cleanup, shm_snapshot
 
@@ -26,7 +27,8 @@ SEED = 5
 
 _HUNG_RECORDER = """
 import ctypes, sys
-from knode_swarm_ros.nodes import executor, exit_watchdog, recorder
+from knode_swarm_ros.nodes.common import executor, exit_watchdog
+from knode_swarm_ros.nodes.recorder import node as recorder
 pause = ctypes.PyDLL(None).pause  # blocks in C with the GIL held
 def hung_clean_up(*args, **kwargs):
     print('clean-up hangs', flush=True)
@@ -42,29 +44,64 @@ recorder.main()
 def _recorder(tmp_path, step, deadline, *params):
     log_path = tmp_path / 'recorder.log'
     with open(log_path, 'wb') as log:
-        proc = start(['-c', _HUNG_RECORDER.format(step=step, deadline=deadline), '-p', f'robots:={ROBOTS}',
-                       '-p', f"output:={tmp_path / 'rec.npz'}", '-p', 'use_sim_time:=true', *params], log)
+        proc = start(
+            [
+                '-c',
+                _HUNG_RECORDER.format(step=step, deadline=deadline),
+                '-p',
+                f'robots:={ROBOTS}',
+                '-p',
+                f'output:={tmp_path / "rec.npz"}',
+                '-p',
+                'use_sim_time:=true',
+                *params,
+            ],
+            log,
+        )
     return proc, log_path
 
 
 def _simulator(tmp_path, *params):
     with open(tmp_path / 'simulator.log', 'wb') as log:
-        return start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', '-p', f'robots:={ROBOTS}',
-                       '-p', 'wait_for_agents:=false', *params], log)
+        return start(
+            [
+                '-m',
+                'knode_swarm_ros.nodes.simulator',
+                '--ros-args',
+                '-p',
+                f'robots:={ROBOTS}',
+                '-p',
+                'wait_for_agents:=false',
+                *params,
+            ],
+            log,
+        )
 
 
 def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tmp_path, ros_domain_id):
     """The flake's course: the simulator says done, the recorder saves, then its context
     shutdown never returns. Nothing signals it: the watchdog alone ends it."""
     from knode_swarm_ros.core.groundtruth import simulate
+
     before = shm_snapshot()
     rec, rec_log = _recorder(tmp_path, '_end_context', 1.0)
-    sim = _simulator(tmp_path, '-p', f'steps:={STEPS}', '-p', 'mode:=lockstep', '-p', 'ground_truth:=true',
-                     '-p', 'wait_for_recorder:=true', '-p', f'seed:={SEED}')
+    sim = _simulator(
+        tmp_path,
+        '-p',
+        f'steps:={STEPS}',
+        '-p',
+        'mode:=lockstep',
+        '-p',
+        'ground_truth:=true',
+        '-p',
+        'wait_for_recorder:=true',
+        '-p',
+        f'seed:={SEED}',
+    )
     try:
         rc = stop(rec)
         text = rec_log.read_text(errors='replace')
-        assert 'clean-up hangs' in text, text   # the hang was reached: the exit is the watchdog's
+        assert 'clean-up hangs' in text, text  # the hang was reached: the exit is the watchdog's
         assert rc == 0 and 'Traceback' not in text, f'rc {rc}\n{text}'
         assert 'hung_clean_up' in text, text  # faulthandler's dump names where it hung
         assert stop(sim) == 0, (tmp_path / 'simulator.log').read_text(errors='replace')

@@ -6,16 +6,16 @@ memory): the lockstep recording equals core.rollout bit for bit. The namespaces 
 the bridge) are removed whatever happens. Skipped, with the reason, only where the machine
 refuses to create namespaces (not root, no iproute2).
 """
+
 import json
 import os
 
 import pytest
+import rclpy  # noqa: F401  (a broken install must fail, not skip)
+from test_ros_swarm import Launcher, _assert_no_strays, _parity, _pids
 
-import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
-
-from knode_swarm_ros.core import load_trajectories  # noqa: E402
-from knode_swarm_ros.nodes import netns  # noqa: E402
-from test_ros_swarm import Launcher, _assert_no_strays, _parity, _pids  # noqa: E402
+from knode_swarm_ros.core import load_trajectories
+from knode_swarm_ros.nodes.swarm import netns
 
 pytestmark = pytest.mark.ros
 
@@ -24,7 +24,9 @@ def _namespaces():
     return set(line.split()[0] for line in os.popen('ip netns list').read().splitlines() if line.strip())
 
 
-def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path, untrained_policies, ros_domain_id):
+def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(
+    tmp_path, untrained_policies, ros_domain_id
+):
     before = _namespaces()
     try:
         hosts_cm = netns.virtual_hosts(3)
@@ -35,10 +37,27 @@ def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path
     try:
         record = tmp_path / 'multihost.npz'
         steps = 150
-        run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 9, '--agents-per-process', 3,
-                       '--steps', steps, '--seed', 2, '--record', record, '--state-timeout', 120,
-                       '--lockstep-timeout', 120,
-                       '--netns', ','.join(h.name for h in hosts))
+        run = Launcher(
+            tmp_path,
+            '--policy',
+            untrained_policies['flock2d'],
+            '--robots',
+            9,
+            '--agents-per-process',
+            3,
+            '--steps',
+            steps,
+            '--seed',
+            2,
+            '--record',
+            record,
+            '--state-timeout',
+            120,
+            '--lockstep-timeout',
+            120,
+            '--netns',
+            ','.join(h.name for h in hosts),
+        )
         assert run.wait_for('ready after'), run.output
         # Every process really lives in its namespace: the agents in three different ones.
         pids = _pids(tmp_path)
@@ -55,13 +74,13 @@ def test_lockstep_with_agents_on_three_hosts_equals_the_offline_rollout(tmp_path
         rc = run.finish()
         assert rc == 0, run.output
         assert load_trajectories(record).states[0].shape == (steps + 1, 9, 4)
-        assert _parity(record, untrained_policies['flock2d'], steps) == 0   # bit for bit
+        assert _parity(record, untrained_policies['flock2d'], steps) == 0  # bit for bit
         report = json.loads((tmp_path / 'logs' / 'simulator.json').read_text())
         assert report['steps_run'] == steps and report['lost'] == []
         _assert_no_strays(tmp_path)
     finally:
         hosts_cm.__exit__(None, None, None)
     # Nothing of this run is left behind (another copy of the suite may own namespaces meanwhile).
-    tag = hosts[0].name[len('knh'):].rsplit('_', 1)[0]
+    tag = hosts[0].name[len('knh') :].rsplit('_', 1)[0]
     ours = {h.name for h in hosts} | {f'knsw{tag}'}
     assert not (_namespaces() & ours) and ours.isdisjoint(before)

@@ -8,33 +8,68 @@ ports on almost every stop: rclpy's LifecycleNode.destroy_node keeps the state m
 holds the node, which keeps the DDS participant past the context's end. The tests wait only for
 polled conditions (log lines) with generous deadlines; the 2 s figure is bench/bench_shutdown.py's.
 """
+
 import signal
 import time
 from pathlib import Path
 
 import pytest
-
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
 from node_processes import start, stop, wait_for
+
 from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot
 
 pytestmark = pytest.mark.ros
 
 ROBOTS = 2
-TRAFFIC = ['-p', f'robots:={ROBOTS}', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
-           '-p', 'publish_rate:=20.0']
+TRAFFIC = [
+    '-p',
+    f'robots:={ROBOTS}',
+    '-p',
+    'mode:=realtime',
+    '-p',
+    'steps:=0',
+    '-p',
+    'wait_for_agents:=false',
+    '-p',
+    'publish_rate:=20.0',
+]
 
 
 def _node_argv(node, tmp_path, policy):
     """``(argv, line it logs once it has heard every robot or runs)`` of ``node``."""
     heard = f'heard all {ROBOTS} robots: ready'
-    args = {'agent': ['-p', 'id:=0', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy}', '-p', 'use_sim_time:=true'],
-            'agents': ['-p', 'ids:=[0,1]', '-p', f'robots:={ROBOTS}', '-p', f'policy:={policy}',
-                       '-p', 'use_sim_time:=true'],
-            'simulator': TRAFFIC,
-            'recorder': ['-p', f'robots:={ROBOTS}', '-p', f"output:={tmp_path / 'rec.npz'}",
-                         '-p', 'use_sim_time:=true'],
-            }[node]
+    args = {
+        'agent': [
+            '-p',
+            'id:=0',
+            '-p',
+            f'robots:={ROBOTS}',
+            '-p',
+            f'policy:={policy}',
+            '-p',
+            'use_sim_time:=true',
+        ],
+        'agents': [
+            '-p',
+            'ids:=[0,1]',
+            '-p',
+            f'robots:={ROBOTS}',
+            '-p',
+            f'policy:={policy}',
+            '-p',
+            'use_sim_time:=true',
+        ],
+        'simulator': TRAFFIC,
+        'recorder': [
+            '-p',
+            f'robots:={ROBOTS}',
+            '-p',
+            f'output:={tmp_path / "rec.npz"}',
+            '-p',
+            'use_sim_time:=true',
+        ],
+    }[node]
     ready = {'simulator': ': running'}.get(node, heard)
     return ['-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', *args], ready
 
@@ -64,15 +99,25 @@ def _port_mappers(held) -> dict:
     return found
 
 
-@pytest.mark.parametrize('node,sig', [('agent', signal.SIGINT), ('agent', signal.SIGTERM),
-                                      ('agents', signal.SIGINT), ('simulator', signal.SIGTERM),
-                                      ('recorder', signal.SIGINT)])
-def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, tmp_path, untrained_policies,
-                                                                      ros_domain_id):
+@pytest.mark.parametrize(
+    'node,sig',
+    [
+        ('agent', signal.SIGINT),
+        ('agent', signal.SIGTERM),
+        ('agents', signal.SIGINT),
+        ('simulator', signal.SIGTERM),
+        ('recorder', signal.SIGINT),
+    ],
+)
+def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(
+    node, sig, tmp_path, untrained_policies, ros_domain_id
+):
     traffic = None
     if node != 'simulator':
-        traffic = start(['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
-                        open(tmp_path / 'traffic.log', 'wb'))
+        traffic = start(
+            ['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
+            open(tmp_path / 'traffic.log', 'wb'),
+        )
     try:
         argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
         log_path = tmp_path / f'{node}.log'
@@ -94,9 +139,14 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
     # A port the node listened on is also open in the peers that sent to it: it goes with the last.
     # A peer outside this test (a process of a concurrent suite whose domain claim ended before it
     # did) that is killed later leaves the port behind whatever the node does: not the node's.
-    left = [name for name in shm_left_by(held, ros_domain_id, before)
-            if not any(name in (port, f'sem.{port}_mutex', f'{port}_el') for port in foreign)]
-    assert left == [], f'{node} left its ports after {sig.name} (mapped by other processes: {sorted(foreign)})'
+    left = [
+        name
+        for name in shm_left_by(held, ros_domain_id, before)
+        if not any(name in (port, f'sem.{port}_mutex', f'{port}_el') for port in foreign)
+    ]
+    assert left == [], (
+        f'{node} left its ports after {sig.name} (mapped by other processes: {sorted(foreign)})'
+    )
 
 
 # The node is built with a step that never ends by itself (it waits in Python, where a signal is
@@ -107,7 +157,8 @@ def test_a_node_stopped_while_messages_flow_leaves_no_shared_memory(node, sig, t
 _BLOCKED = """
 import sys, time
 import rclpy.node
-from knode_swarm_ros.nodes import agent, {module}
+from knode_swarm_ros.nodes.agent import node as agent
+from knode_swarm_ros.nodes.{module} import node as {module}
 def never_ending(*args, **kwargs):
     print('blocked in construction', flush=True)
     time.sleep(3600)
@@ -125,15 +176,23 @@ sys.argv = ['{module}', '--ros-args', *sys.argv[1:]]
 """
 
 
-@pytest.mark.parametrize('node,step,sig', [('agent', 'policy', signal.SIGINT), ('agent', 'policy', signal.SIGTERM),
-                                           ('agents', 'policy', signal.SIGINT), ('agent', 'rclpy', signal.SIGTERM),
-                                           ('simulator', 'rclpy', signal.SIGINT), ('agent', 'torch', signal.SIGTERM),
-                                           ('agent', 'torch', signal.SIGINT)])
-def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(node, step, sig, tmp_path, untrained_policies,
-                                                                     ros_domain_id):
+@pytest.mark.parametrize(
+    'node,step,sig',
+    [
+        ('agent', 'policy', signal.SIGINT),
+        ('agent', 'policy', signal.SIGTERM),
+        ('agents', 'policy', signal.SIGINT),
+        ('agent', 'rclpy', signal.SIGTERM),
+        ('simulator', 'rclpy', signal.SIGINT),
+        ('agent', 'torch', signal.SIGTERM),
+        ('agent', 'torch', signal.SIGINT),
+    ],
+)
+def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(
+    node, step, sig, tmp_path, untrained_policies, ros_domain_id
+):
     argv, _ = _node_argv(node, tmp_path, untrained_policies['flock2d'])
     log_path = tmp_path / f'{node}.log'
-    before = frozenset(shm_snapshot())
     with open(log_path, 'wb') as log:
         proc = start(['-c', _BLOCKED.format(module=node, step=step), *argv[3:]], log)
     wait_for(proc, log_path, 'blocked in construction')

@@ -7,30 +7,54 @@ that lands before the interpreter has run a line, the signal's default action). 
 signal at moments they do not control and assert that invariant; they wait only for polled
 conditions with generous deadlines. Timing figures (2 s, 50 of 50) are bench/bench_shutdown.py's.
 """
+
 import signal
 import subprocess
 import sys
 import time
 
 import pytest
+import rclpy  # noqa: F401  (a broken install must fail, not skip)
+from node_processes import WAIT_S, start, stop, wait_for
 
-import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
-
-from node_processes import WAIT_S, start, stop, wait_for  # noqa: E402
-from knode_swarm_ros.nodes.swarm.processes import catches_signal  # noqa: E402
+from knode_swarm_ros.nodes.swarm.processes import catches_signal
 
 pytestmark = pytest.mark.ros
 
 
 def _command(node, tmp_path, untrained_policies):
     if node == 'agent':
-        return ['-p', 'id:=0', '-p', 'robots:=2', '-p', f"policy:={untrained_policies['flock2d']}"], 'publishing'
+        return [
+            '-p',
+            'id:=0',
+            '-p',
+            'robots:=2',
+            '-p',
+            f'policy:={untrained_policies["flock2d"]}',
+        ], 'publishing'
     if node == 'agents':  # the hosted agents: several robots in one process
-        return ['-p', 'ids:=[0,1]', '-p', 'robots:=2', '-p', f"policy:={untrained_policies['flock2d']}"], '(2 hosted)'
+        return [
+            '-p',
+            'ids:=[0,1]',
+            '-p',
+            'robots:=2',
+            '-p',
+            f'policy:={untrained_policies["flock2d"]}',
+        ], '(2 hosted)'
     if node == 'simulator':
-        return ['-p', 'robots:=2', '-p', 'mode:=realtime', '-p', 'steps:=0', '-p', 'wait_for_agents:=false',
-                '-p', 'real_time_factor:=1.0'], ': running'
-    return ['-p', 'robots:=2', '-p', f"output:={tmp_path / 'rec.npz'}"], 'recording 2 robots'
+        return [
+            '-p',
+            'robots:=2',
+            '-p',
+            'mode:=realtime',
+            '-p',
+            'steps:=0',
+            '-p',
+            'wait_for_agents:=false',
+            '-p',
+            'real_time_factor:=1.0',
+        ], ': running'
+    return ['-p', 'robots:=2', '-p', f'output:={tmp_path / "rec.npz"}'], 'recording 2 robots'
 
 
 def _start(node, args, log):
@@ -75,7 +99,20 @@ def test_a_signal_at_any_moment_gives_a_clean_exit(node, tmp_path, untrained_pol
 def test_an_unparsable_params_file_is_refused_with_status_2(node, tmp_path, ros_domain_id):
     bad = tmp_path / 'params.yaml'
     bad.write_text('/**:\n  ros__parameters:\n    robots: [1\n  oops: : :\n')
-    proc = subprocess.run([sys.executable, '-m', f'knode_swarm_ros.nodes.{node}', '--ros-args', '-p', 'id:=0',
-                           '--params-file', str(bad)], capture_output=True, text=True, timeout=WAIT_S)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            f'knode_swarm_ros.nodes.{node}',
+            '--ros-args',
+            '-p',
+            'id:=0',
+            '--params-file',
+            str(bad),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+    )
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert 'Traceback' not in proc.stderr and 'params.yaml' in proc.stderr and 'error:' in proc.stderr

@@ -10,6 +10,7 @@
 Each run has its own ROS domain (the launcher draws one) and localhost-only discovery.
 Waiting is always for a condition (a line of output, a file) with a deadline.
 """
+
 import json
 import os
 import re
@@ -21,11 +22,10 @@ import time
 
 import numpy as np
 import pytest
+import rclpy  # noqa: F401  (a broken install must fail, not skip)
 
-import rclpy  # noqa: F401,E402  (a broken install must fail, not skip)
-
-from knode_swarm_ros.core import load_policy, load_trajectories, save_trajectories  # noqa: E402
-from knode_swarm_ros.core.rollout import rollout  # noqa: E402  (module path: see docs/ros.md, "Notes")
+from knode_swarm_ros.core import load_policy, load_trajectories, save_trajectories
+from knode_swarm_ros.core.rollout import rollout
 
 pytestmark = pytest.mark.ros
 
@@ -46,12 +46,23 @@ def _own_domain(ros_domain_id):
 
 
 def _cmd(tmp_path, *args):
-    return [sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--log-dir', str(tmp_path / 'logs'),
-            '--no-figure', '--domain-id', os.environ['ROS_DOMAIN_ID'], *map(str, args)]
+    return [
+        sys.executable,
+        '-m',
+        'knode_swarm_ros.nodes.swarm',
+        '--log-dir',
+        str(tmp_path / 'logs'),
+        '--no-figure',
+        '--domain-id',
+        os.environ['ROS_DOMAIN_ID'],
+        *map(str, args),
+    ]
 
 
 def _run(tmp_path, *args):
-    proc = subprocess.run(_cmd(tmp_path, *args), env=_env(), capture_output=True, text=True, timeout=RUN_TIMEOUT)
+    proc = subprocess.run(
+        _cmd(tmp_path, *args), env=_env(), capture_output=True, text=True, timeout=RUN_TIMEOUT
+    )
     return proc.returncode, proc.stdout + proc.stderr
 
 
@@ -63,8 +74,14 @@ class Launcher:
 
     def __init__(self, tmp_path, *args):
         self.lines = []
-        self.proc = subprocess.Popen(_cmd(tmp_path, *args), env=_env(), stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        self.proc = subprocess.Popen(
+            _cmd(tmp_path, *args),
+            env=_env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         self.reader = threading.Thread(target=self._read, daemon=True)
         self.reader.start()
 
@@ -134,8 +151,19 @@ def _parity(record, policy_path, steps):
 
 def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, untrained_policies):
     record = tmp_path / 'flock.npz'
-    rc, out = _run(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 10, '--steps', 300, '--seed', 3,
-                   '--record', record)
+    rc, out = _run(
+        tmp_path,
+        '--policy',
+        untrained_policies['flock2d'],
+        '--robots',
+        10,
+        '--steps',
+        300,
+        '--seed',
+        3,
+        '--record',
+        record,
+    )
     assert rc == 0, out
     diff = _parity(record, untrained_policies['flock2d'], 300)
     assert diff == 0.0, f'max state difference {diff}'  # bit for bit
@@ -144,21 +172,37 @@ def test_lockstep_flock2d_ten_robots_equals_the_offline_rollout(tmp_path, untrai
     # What lockstep guarantees: every robot answered each of the 300 steps (a rejoin counts
     # apart); the commands for the final state may race the simulator's exit.
     counters = report['counters']
-    assert report['steps_run'] == 300 and report['lost'] == [] and counters['accepted'] + counters['rejoined'] >= 3000
+    assert (
+        report['steps_run'] == 300
+        and report['lost'] == []
+        and counters['accepted'] + counters['rejoined'] >= 3000
+    )
     _assert_no_strays(tmp_path)
 
 
 def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, untrained_policies):
-    from knode_swarm_ros.nodes.simulator_logic import initial_state
+    from knode_swarm_ros.logic.simulator.swarm_sim import initial_state
+
     z0, _ = initial_state('boids3d', 10, seed=4)
     init = tmp_path / 'init.npz'
     save_trajectories(init, np.stack([z0 + 1.0, z0])[:, None], 1 / 60, 'boids3d')
     assert load_policy(untrained_policies['boids3d']).tau == 1
     record = tmp_path / 'boids.npz'
-    rc, out = _run(tmp_path, '--policy', untrained_policies['boids3d'], '--init', f'{init}:1', '--steps', 300,
-                   '--record', record)
+    rc, out = _run(
+        tmp_path,
+        '--policy',
+        untrained_policies['boids3d'],
+        '--init',
+        f'{init}:1',
+        '--steps',
+        300,
+        '--record',
+        record,
+    )
     assert rc == 0, out
-    assert np.allclose(load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15)  # heading via quaternion
+    assert np.allclose(
+        load_trajectories(record).states[0, 0], z0, rtol=0, atol=1e-15
+    )  # heading via quaternion
     diff = _parity(record, untrained_policies['boids3d'], 300)
     # Headings reach the recorder as quaternions: a few ulps (measured 5.6e-16), nothing more.
     assert diff <= 1e-14, f'max state difference {diff}'
@@ -167,6 +211,7 @@ def test_lockstep_boids3d_with_delay_equals_the_offline_rollout(tmp_path, untrai
 
 def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_policies):
     from knode_swarm_ros.nodes import swarm
+
     shm_before = swarm.shm_snapshot()
     record = tmp_path / 'kill.npz'
     steps = 600
@@ -174,8 +219,21 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
     # live agent slowed down past it by a loaded machine is held too, but rejoins with its next
     # command, so only robot 2 is lost at the end whatever the load; 3 s (not 1 s) keeps such
     # false alarms rare without making the run long.
-    run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 5, '--steps', steps, '--seed', 1,
-                   '--lockstep-timeout', 3.0, '--record', record)
+    run = Launcher(
+        tmp_path,
+        '--policy',
+        untrained_policies['flock2d'],
+        '--robots',
+        5,
+        '--steps',
+        steps,
+        '--seed',
+        1,
+        '--lockstep-timeout',
+        3.0,
+        '--record',
+        record,
+    )
     assert run.wait_for('ready after'), run.output
     victim = _pids(tmp_path)['agent_2']
     os.kill(victim, signal.SIGKILL)
@@ -216,12 +274,25 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
 
 def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_path, untrained_policies):
     record = tmp_path / 'rt.npz'
-    run = Launcher(tmp_path, '--policy', untrained_policies['flock2d'], '--robots', 4, '--mode', 'realtime', '--steps', 0,
-                   '--rate', 20, '--record', record)
+    run = Launcher(
+        tmp_path,
+        '--policy',
+        untrained_policies['flock2d'],
+        '--robots',
+        4,
+        '--mode',
+        'realtime',
+        '--steps',
+        0,
+        '--rate',
+        20,
+        '--record',
+        record,
+    )
     # Ctrl-C once the simulator reports step 250 (50 published frames at 5 steps a frame), a
     # condition on the run's own progress rather than on how much wall time has passed.
     assert run.wait_for_step(250), run.output
-    os.killpg(run.proc.pid, signal.SIGINT)       # Ctrl-C in the launcher's terminal
+    os.killpg(run.proc.pid, signal.SIGINT)  # Ctrl-C in the launcher's terminal
     rc = run.finish()
     out = run.output
     assert rc == 130, out
@@ -239,10 +310,25 @@ def test_realtime_records_and_ctrl_c_stops_everything_with_the_file_saved(tmp_pa
 
 def test_ground_truth_mode_records_the_ground_truth(tmp_path):
     from knode_swarm_ros.core.groundtruth import simulate
+
     record = tmp_path / 'gt.npz'
     bag = tmp_path / 'gt.mcap'
-    rc, out = _run(tmp_path, '--ground-truth', '--scenario', 'flock2d', '--robots', 6, '--steps', 200,
-                   '--seed', 5, '--record', record, '--bag', bag)
+    rc, out = _run(
+        tmp_path,
+        '--ground-truth',
+        '--scenario',
+        'flock2d',
+        '--robots',
+        6,
+        '--steps',
+        200,
+        '--seed',
+        5,
+        '--record',
+        record,
+        '--bag',
+        bag,
+    )
     assert rc == 0, out
     assert 'no agents' in out
     got = load_trajectories(record)
@@ -252,6 +338,7 @@ def test_ground_truth_mode_records_the_ground_truth(tmp_path):
     # Observe, learn, deploy: the run's bag imports back into the same trajectory (positions
     # are stored exactly; velocities come from central differences of the resampled positions).
     from training.import_bag import ImportOptions, import_bag
+
     imported = import_bag(bag, ImportOptions(scenario='flock2d', rate=100.0, topics=['/robot_*/odom'])).states
     assert imported.shape == (1, 201, 6, 4)
     np.testing.assert_allclose(imported[0, :, :, :2], ref[0, :, :, :2], atol=1e-9)

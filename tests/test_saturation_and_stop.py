@@ -1,14 +1,15 @@
 """Issue 10, items 11 and 12: one saturation rule (core.saturation) for the offline rollout and
 the agent, and stops that brake acceleration-commanded robots to rest instead of letting them coast."""
+
 import numpy as np
 import pytest
 
 from knode_swarm_ros.core.rollout import rollout
 from knode_swarm_ros.core.saturation import effective_limit, saturate, stop_command
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.nodes.agent_logic import AgentConfig, AgentLogic
-from knode_swarm_ros.nodes.common import dt_mismatch, stamp_ns
-from knode_swarm_ros.nodes.simulator_logic import SwarmSim
+from knode_swarm_ros.logic.agent.agent_logic import AgentConfig, AgentLogic
+from knode_swarm_ros.logic.common import dt_mismatch
+from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
 
 SEC = 1_000_000_000
 
@@ -27,7 +28,9 @@ class HugePolicy:
 
 
 def test_saturate_clips_per_axis_and_limits_only_lower():
-    np.testing.assert_array_equal(saturate([[1e30, -3.0], [-1e30, 12.0]], 10.0), [[10.0, -3.0], [-10.0, 10.0]])
+    np.testing.assert_array_equal(
+        saturate([[1e30, -3.0], [-1e30, 12.0]], 10.0), [[10.0, -3.0], [-10.0, 10.0]]
+    )
     np.testing.assert_array_equal(saturate([5.0, -50.0], None), [5.0, -50.0])
     assert effective_limit(10.0, 0.0) == 10.0
     assert effective_limit(10.0, 4.0) == 4.0
@@ -79,7 +82,7 @@ def test_simulator_brakes_a_lost_robot_instead_of_holding_its_last_acceleration(
     z0 = np.array([[0.0, 0.0, 1.0, 0.0], [5.0, 0.0, 0.0, 0.0]])
     sim = SwarmSim('flock2d', z0, spec.dt, 'lockstep', stop_limit=10.0)
     sim.note_published(0.0)
-    sim.offer(0, sim.stamp_ns, [10.0, 0.0], 0.0)   # robot 0 accelerates, then falls silent
+    sim.offer(0, sim.stamp_ns, [10.0, 0.0], 0.0)  # robot 0 accelerates, then falls silent
     sim.offer(1, sim.stamp_ns, [0.0, 0.0], 0.0)
     sim.advance()
     speed_when_lost = sim.states[0, 2]
@@ -90,7 +93,7 @@ def test_simulator_brakes_a_lost_robot_instead_of_holding_its_last_acceleration(
         assert sim.can_advance()
         sim.advance()
     assert speed_when_lost > 1.0
-    np.testing.assert_array_equal(sim.states[0, 2:], [0.0, 0.0])   # held at 10 it would be at 21 m/s
+    np.testing.assert_array_equal(sim.states[0, 2:], [0.0, 0.0])  # held at 10 it would be at 21 m/s
     assert sim.states[0, 0] < 1.0
 
 
@@ -103,7 +106,7 @@ def test_simulator_stops_a_silent_velocity_robot_in_realtime():
         sim.advance()
     p = sim.states[0, 0]
     sim.advance()
-    assert sim.states[0, 0] == p   # zero velocity once the command is too old
+    assert sim.states[0, 0] == p  # zero velocity once the command is too old
 
 
 def test_agent_stale_state_stop_brakes_an_acceleration_robot_to_rest():
@@ -114,7 +117,7 @@ def test_agent_stale_state_stop_brakes_an_acceleration_robot_to_rest():
     period = SEC // 20
     now, v, last = 1 * SEC, np.array([2.0, -1.0]), None
     values = []
-    for _ in range(80):   # a robot that applies each command for one control period
+    for _ in range(80):  # a robot that applies each command for one control period
         cmd = logic.tick(now)
         if last is not None:
             v = v + last * (period * 1e-9)
@@ -123,9 +126,9 @@ def test_agent_stale_state_stop_brakes_an_acceleration_robot_to_rest():
             values.append(cmd.value)
         now += period
     assert len(values) > 40
-    assert np.all(values[0] == -10.0)              # braking at the limit, not coasting (zero)
+    assert np.all(values[0] == -10.0)  # braking at the limit, not coasting (zero)
     np.testing.assert_allclose(v, 0.0, atol=1e-9)  # brought to rest ...
-    np.testing.assert_allclose(values[-1], 0.0, atol=1e-9)   # ... and kept there
+    np.testing.assert_allclose(values[-1], 0.0, atol=1e-9)  # ... and kept there
     assert max(abs(x).max() for x in values) <= 10.0
 
 

@@ -2,6 +2,7 @@
 (/proc/locks); after it ends, what of their groups is still there, unlocked, is its leak, except
 the segment and mutex of a port that every domain opens (another user's killed process keeps
 them)."""
+
 import fcntl
 import os
 
@@ -19,8 +20,10 @@ def test_held_files_are_the_locked_ones_and_what_stays_after_the_owner_is_the_le
     own_port = f'fastrtps_port{7400 + 250 * domain + 11}'
     for base in ('fastrtps_0123456789abcdef', own_port, 'fastrtps_port7000', 'fastrtps_feedfacefeedface'):
         _group(tmp_path, base)
-    handles = [open(tmp_path / f'{base}_el', 'ab') for base in ('fastrtps_0123456789abcdef', own_port,
-                                                                  'fastrtps_port7000')]
+    handles = [
+        open(tmp_path / f'{base}_el', 'ab')
+        for base in ('fastrtps_0123456789abcdef', own_port, 'fastrtps_port7000')
+    ]
     for fh in handles:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     held = shm.shm_held_by(os.getpid())
@@ -30,9 +33,19 @@ def test_held_files_are_the_locked_ones_and_what_stays_after_the_owner_is_the_le
         fh.close()  # the owner "ends" without removing anything
     (tmp_path / 'fastrtps_port7000_el').unlink()  # a clean exit removes the lock, the shared port stays
     segment = 'fastrtps_0123456789abcdef'
-    assert shm.shm_left_by(held, domain) == [segment, f'{segment}_el', f'sem.{segment}_mutex',
-                                             own_port, f'{own_port}_el', f'sem.{own_port}_mutex']
-    assert shm.shm_left_by(held, domain, before=frozenset({own_port, f'sem.{own_port}_mutex'})) == \
-        [segment, f'{segment}_el', f'sem.{segment}_mutex', f'{own_port}_el']  # there before: not its
+    assert shm.shm_left_by(held, domain) == [
+        segment,
+        f'{segment}_el',
+        f'sem.{segment}_mutex',
+        own_port,
+        f'{own_port}_el',
+        f'sem.{own_port}_mutex',
+    ]
+    assert shm.shm_left_by(held, domain, before=frozenset({own_port, f'sem.{own_port}_mutex'})) == [
+        segment,
+        f'{segment}_el',
+        f'sem.{segment}_mutex',
+        f'{own_port}_el',
+    ]  # there before: not its
     # without a domain every port counts whole
     assert 'fastrtps_port7000' in shm.shm_left_by(held)

@@ -1,18 +1,26 @@
 """The simulator's command path at scale (issue 12): commands read from their serialized bytes,
 and the lockstep advance decided by a count instead of a scan of every robot."""
+
 import random
 
 import numpy as np
 import pytest
 
-from knode_swarm_ros.nodes.conversions import (CdrError, command_from_cdr, command_msg_type, command_to_cdr,
-                                               command_to_msg, msg_to_command)
-from knode_swarm_ros.nodes.simulator_logic import SwarmSim
+from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
+from knode_swarm_ros.nodes.common.conversions import (
+    CdrError,
+    command_from_cdr,
+    command_msg_type,
+    command_to_cdr,
+    command_to_msg,
+    msg_to_command,
+)
 
 
 def _typed(data: bytes, scenario: str):
     """What the simulator got before: rclpy's deserialization, then msg_to_command (None: refused)."""
     from rclpy import serialization
+
     try:
         return msg_to_command(serialization.deserialize_message(data, command_msg_type(scenario)), scenario)
     except Exception:  # rclpy raises RMWError (a RuntimeError) for bytes it cannot read
@@ -35,13 +43,19 @@ def _same(a, b) -> bool:
 @pytest.mark.parametrize('scenario,m', [('flock2d', 2), ('boids3d', 3)])
 def test_raw_commands_decode_as_rclpys_typed_messages(scenario, m):
     from rclpy import serialization
+
     rng = np.random.default_rng(4)
     for ns in (0, 1, 999_999_999, 12_345_678_901_234):
         u = rng.normal(scale=5.0, size=m)
-        for data in (command_to_cdr(ns, u, scenario), serialization.serialize_message(command_to_msg(ns, u, scenario))):
+        for data in (
+            command_to_cdr(ns, u, scenario),
+            serialization.serialize_message(command_to_msg(ns, u, scenario)),
+        ):
             got = command_from_cdr(data, scenario)
             assert got[0] == ns and np.array_equal(got[1], u) and _same(got, _typed(data, scenario))
-    nan = command_to_cdr(5, [np.nan, np.inf, -np.inf][:m], scenario)  # decoded; the simulator drops it as non_finite
+    nan = command_to_cdr(
+        5, [np.nan, np.inf, -np.inf][:m], scenario
+    )  # decoded; the simulator drops it as non_finite
     assert _same(_raw(nan, scenario), _typed(nan, scenario))
 
 
@@ -50,10 +64,12 @@ def test_raw_commands_refuse_exactly_what_rclpy_refuses_on_hostile_bytes(scenari
     rng = random.Random(7)
     refused = 0
     for n in range(1500):
-        good = bytearray(command_to_cdr(rng.randrange(10**12), np.random.default_rng(n).normal(size=m), scenario))
+        good = bytearray(
+            command_to_cdr(rng.randrange(10**12), np.random.default_rng(n).normal(size=m), scenario)
+        )
         kind = n % 5
-        if kind == 0:    # truncated
-            data = good[:rng.randrange(len(good) + 1)]
+        if kind == 0:  # truncated
+            data = good[: rng.randrange(len(good) + 1)]
         elif kind == 1:  # bytes flipped anywhere
             data = good
             for _ in range(rng.randrange(1, 3)):
@@ -64,8 +80,8 @@ def test_raw_commands_refuse_exactly_what_rclpy_refuses_on_hostile_bytes(scenari
             data = good
             data[rng.randrange(4)] = rng.randrange(16)
             if rng.random() < 0.5:
-                data = data[:rng.randrange(len(data) + 1)]
-        else:            # a lying frame_id length
+                data = data[: rng.randrange(len(data) + 1)]
+        else:  # a lying frame_id length
             data = good
             data[12:16] = rng.randrange(0, 1 << rng.choice((6, 32))).to_bytes(4, 'little')
         data = bytes(data)
@@ -76,7 +92,7 @@ def test_raw_commands_refuse_exactly_what_rclpy_refuses_on_hostile_bytes(scenari
 
 
 def test_undecodable_commands_are_dropped_and_counted():
-    from knode_swarm_ros.nodes.simulator_lifecycle import LifecycleConfig, SimLifecycle
+    from knode_swarm_ros.logic.simulator.run_phases import LifecycleConfig, SimLifecycle
 
     class Out:
         def __init__(self):
@@ -127,9 +143,9 @@ def test_distinct_commands_are_counted_once_whatever_is_re_sent_or_overtaken():
     for s in range(3):
         for r in range(3):
             sim.offer(r, ns[s], [0.1, 0.0])
-        sim.offer(0, ns[s], [0.2, 0.0])          # robot 0 re-sends each step (a re-opened tick)
+        sim.offer(0, ns[s], [0.2, 0.0])  # robot 0 re-sends each step (a re-opened tick)
         sim.advance()
-    sim.offer(1, ns[1], [0.3, 0.0])               # an old step again: stale, not new
-    sim.offer(2, ns[3], [0.3, 0.0])               # the current step
+    sim.offer(1, ns[1], [0.3, 0.0])  # an old step again: stale, not new
+    sim.offer(2, ns[3], [0.3, 0.0])  # the current step
     assert sim.counters.commanded == 3 * 3 + 1
     assert sim.counters.accepted == 3 * 4 + 1 and sim.counters.stale == 1

@@ -1,5 +1,6 @@
 """Issue 10, item 2: the venv gets the CPU build of the pinned torch wherever it is installed,
 or stops with a message that says how (tools/torch_build.py, run by `make venv`)."""
+
 import importlib.util
 import re
 from pathlib import Path
@@ -11,13 +12,21 @@ _spec = importlib.util.spec_from_file_location('torch_build', REPO / 'tools' / '
 torch_build = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(torch_build)
 
-CPU = {'metadata': {'version': '2.13.0+cpu', 'requires_dist': ['filelock', 'sympy>=1.13.3']},
-       'download_info': {'url': 'file:///opt/wheels/torch-2.13.0+cpu.whl'}}
-CUDA = {'metadata': {'version': '2.13.0', 'requires_dist': ['filelock'] + [f'nvidia-lib{i}==1; platform_system == '
-                                                                          '"Linux"' for i in range(16)]},
-        'download_info': {'url': 'https://files.pythonhosted.org/torch-2.13.0-manylinux.whl'}}
-MAC = {'metadata': {'version': '2.13.0', 'requires_dist': ['filelock']},
-       'download_info': {'url': 'https://files.pythonhosted.org/torch-2.13.0-macosx.whl'}}
+CPU = {
+    'metadata': {'version': '2.13.0+cpu', 'requires_dist': ['filelock', 'sympy>=1.13.3']},
+    'download_info': {'url': 'file:///opt/wheels/torch-2.13.0+cpu.whl'},
+}
+CUDA = {
+    'metadata': {
+        'version': '2.13.0',
+        'requires_dist': ['filelock'] + [f'nvidia-lib{i}==1; platform_system == "Linux"' for i in range(16)],
+    },
+    'download_info': {'url': 'https://files.pythonhosted.org/torch-2.13.0-manylinux.whl'},
+}
+MAC = {
+    'metadata': {'version': '2.13.0', 'requires_dist': ['filelock']},
+    'download_info': {'url': 'https://files.pythonhosted.org/torch-2.13.0-macosx.whl'},
+}
 
 
 def fake_pip(default, cpu_index):
@@ -27,6 +36,7 @@ def fake_pip(default, cpu_index):
         calls.append(args)
         item = cpu_index if '--index-url' in args else default
         return (0, {'install': [item]}, '') if item is not None else (1, None, 'no matching distribution')
+
     return pip, calls
 
 
@@ -35,8 +45,9 @@ def test_the_pin_is_read_from_requirements():
     assert re.fullmatch(r'torch==\d+\.\d+\.\d+', pin)
 
 
-@pytest.mark.parametrize('item,cpu', [(CPU, True), (CUDA, False), (MAC, True),
-                                      ({'metadata': {'version': '2.13.0+cu130'}}, False)])
+@pytest.mark.parametrize(
+    'item,cpu', [(CPU, True), (CUDA, False), (MAC, True), ({'metadata': {'version': '2.13.0+cu130'}}, False)]
+)
 def test_cpu_builds_are_told_from_cuda_builds(item, cpu):
     assert torch_build.is_cpu_build(item) is cpu
 
@@ -60,12 +71,18 @@ def test_no_cpu_build_anywhere_stops_with_status_2_and_says_how(capsys):
         torch_build.choose('torch==2.13.0', pip)
     assert err.value.code == 2
     text = capsys.readouterr().err
-    assert 'no CPU build of torch==2.13.0' in text and 'TORCH_BUILD=cuda' in text and 'download.pytorch.org' in text
+    assert (
+        'no CPU build of torch==2.13.0' in text
+        and 'TORCH_BUILD=cuda' in text
+        and 'download.pytorch.org' in text
+    )
 
 
 def test_cuda_is_an_explicit_opt_in(monkeypatch):
     monkeypatch.setenv('TORCH_BUILD', 'cuda')
-    monkeypatch.setattr(torch_build, 'choose', lambda *a, **k: pytest.fail('no CPU check with TORCH_BUILD=cuda'))
+    monkeypatch.setattr(
+        torch_build, 'choose', lambda *a, **k: pytest.fail('no CPU check with TORCH_BUILD=cuda')
+    )
     assert torch_build.main() == 0
     monkeypatch.setenv('TORCH_BUILD', 'rocm7')
     assert torch_build.main() == 2

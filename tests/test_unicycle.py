@@ -1,5 +1,6 @@
 """The unicycle mapping (knode_swarm_ros/core/unicycle.py): exact tracking of the point ahead,
 its limits, and convergence of a simulated differential-drive robot to a desired velocity."""
+
 import math
 
 import numpy as np
@@ -26,8 +27,13 @@ def test_acceleration_policy_asks_for_the_velocity_after_one_held_period():
 
 
 def test_limits_hold_every_period_and_are_counted():
-    lim = UnicycleLimits(lookahead=0.2, max_linear_speed=0.22, max_angular_speed=1.8, max_linear_accel=0.5,
-                         max_angular_accel=3.0)
+    lim = UnicycleLimits(
+        lookahead=0.2,
+        max_linear_speed=0.22,
+        max_angular_speed=1.8,
+        max_linear_accel=0.5,
+        max_angular_accel=3.0,
+    )
     m = UnicycleMapper(lim, 'velocity', 0.1)
     rng = np.random.default_rng(0)
     last = (0.0, 0.0)
@@ -63,14 +69,21 @@ def _drive(u, theta0, limits, steps=400, dt=0.02):
 @pytest.mark.parametrize('theta0', [0.0, 1.5, math.pi - 0.1, -2.0])
 def test_robot_converges_to_the_desired_velocity_from_any_heading(theta0):
     u = np.array([0.3, 0.15])
-    limits = UnicycleLimits(lookahead=0.2, max_linear_speed=1.0, max_angular_speed=1.8, max_linear_accel=2.0,
-                            max_angular_accel=6.0)
+    limits = UnicycleLimits(
+        lookahead=0.2,
+        max_linear_speed=1.0,
+        max_angular_speed=1.8,
+        max_linear_accel=2.0,
+        max_angular_accel=6.0,
+    )
     pose, (v, w) = _drive(u, theta0, limits)
     heading = math.atan2(u[1], u[0])
-    assert abs(math.remainder(pose[2] - heading, 2 * math.pi)) < 1e-3     # faces the motion
+    assert abs(math.remainder(pose[2] - heading, 2 * math.pi)) < 1e-3  # faces the motion
     assert v == pytest.approx(np.linalg.norm(u), abs=1e-3) and abs(w) < 1e-3
     # A binding speed limit: it drives the right way at the top speed.
-    pose, (v, w) = _drive(u, theta0, UnicycleLimits(lookahead=0.2, max_linear_speed=0.1, max_angular_speed=1.8))
+    pose, (v, w) = _drive(
+        u, theta0, UnicycleLimits(lookahead=0.2, max_linear_speed=0.1, max_angular_speed=1.8)
+    )
     assert abs(math.remainder(pose[2] - heading, 2 * math.pi)) < 1e-2 and v == pytest.approx(0.1)
 
 
@@ -80,18 +93,22 @@ def test_unicycle_step_is_exact_on_arcs():
     for _ in range(10_000):
         fine = unicycle_step(fine, 0.7, 1.1, 1e-4)
     assert np.allclose(unicycle_step(pose, 0.7, 1.1, 1.0), fine, atol=1e-9)
-    assert np.allclose(unicycle_step(pose, 0.7, 0.0, 2.0), [1.0 + 1.4 * math.cos(0.3), 2.0 + 1.4 * math.sin(0.3), 0.3])
+    assert np.allclose(
+        unicycle_step(pose, 0.7, 0.0, 2.0), [1.0 + 1.4 * math.cos(0.3), 2.0 + 1.4 * math.sin(0.3), 0.3]
+    )
 
 
 def test_brake_command_stops_a_double_integrator_within_the_limit():
-    import rclpy.lifecycle  # noqa: F401,E402  (a broken install must fail, not skip)
-    from knode_swarm_ros.nodes.agent_lifecycle import brake_command
+    import rclpy.lifecycle  # noqa: F401  (a broken install must fail, not skip)
+
+    from knode_swarm_ros.nodes.agent.managed import brake_command
+
     z = np.array([1.0, 2.0, 0.03, -0.5])
     u = brake_command('acceleration', z, 0.01, 10.0)
-    assert np.allclose(u, [-3.0, 10.0])                               # -v/dt, saturated per axis
+    assert np.allclose(u, [-3.0, 10.0])  # -v/dt, saturated per axis
     assert np.allclose(brake_command('acceleration', z, 0.01, None), [-3.0, 50.0])
     assert np.array_equal(brake_command('velocity', np.zeros(6), 0.01, 1.0, command_dim=3), np.zeros(3))
-    v = z[2:].copy()                                                  # braking to rest, step by step
+    v = z[2:].copy()  # braking to rest, step by step
     for _ in range(10):
         v = v + brake_command('acceleration', np.r_[0.0, 0.0, v], 0.01, 10.0) * 0.01
     assert np.allclose(v, 0.0, atol=1e-12)
@@ -101,12 +118,14 @@ def test_unicycle_swarm_without_commands_drives_straight_like_the_double_integra
     """The offline study's loop (simulator stepping, Odometry fields, the agent's mapping): a zero
     policy leaves unicycles on the straight lines of the point masses; a braking one slows them."""
     from knode_swarm_ros.core import rollout
-    from training.unicycle_study import unicycle_rollout
+    from training.studies.unicycle_study import unicycle_rollout
+
     rng = np.random.default_rng(5)
     z0 = np.concatenate([rng.uniform(-3, 3, (2, 4, 2)), rng.normal(size=(2, 4, 2))], axis=-1)
 
     def zero(Y, mask):
         return np.zeros((Y.shape[0], 2))
+
     di = rollout(zero, z0, 50, 'flock2d', 5.0, 4, 0, 0.01)
     for state in ('point', 'axle'):
         uni, bound = unicycle_rollout(zero, z0, 50, UnicycleLimits(lookahead=0.2), 5.0, 4, 0.01, state)
@@ -121,11 +140,12 @@ def test_unicycle_swarm_without_commands_drives_straight_like_the_double_integra
 # --- the simulator's robot model (core.unicycle.UnicycleRobots, SwarmSim robot=...) ----------------
 def _bases(z0, **limits):
     from knode_swarm_ros.core.unicycle import UnicycleRobots
+
     return UnicycleRobots(np.asarray(z0, dtype=np.float64), UnicycleLimits(**limits))
 
 
 def test_base_drives_a_straight_line_at_its_speed():
-    b = _bases([[1.0, -2.0, 0.6, 0.8]])                       # heading atan2(0.8, 0.6), speed 1
+    b = _bases([[1.0, -2.0, 0.6, 0.8]])  # heading atan2(0.8, 0.6), speed 1
     for _ in range(250):
         b.step([[1.0, 0.0]], 0.01)
     assert np.allclose(b.pose[0, :2], [1.0 + 2.5 * 0.6, -2.0 + 2.5 * 0.8], atol=1e-12)
@@ -136,14 +156,14 @@ def test_base_drives_a_straight_line_at_its_speed():
 def test_base_drives_a_circle_of_radius_v_over_omega(theta0):
     v, w, dt = 0.8, 1.6, 0.01
     b = _bases([[0.0, 0.0, np.cos(theta0), np.sin(theta0)]])
-    centre = np.array([-v / w * np.sin(theta0), v / w * np.cos(theta0)])   # to the left of the heading
-    steps = int(round(2 * np.pi / w / dt))                                # one lap (2 pi / w = 3.93 s)
+    centre = np.array([-v / w * np.sin(theta0), v / w * np.cos(theta0)])  # to the left of the heading
+    steps = int(round(2 * np.pi / w / dt))  # one lap (2 pi / w = 3.93 s)
     radii = []
     for _ in range(steps):
         b.step([[v, w]], dt)
         radii.append(np.linalg.norm(b.pose[0, :2] - centre))
     assert np.allclose(radii, v / w, atol=1e-12)
-    lap = steps * dt * w                                                 # the angle turned, about 2 pi
+    lap = steps * dt * w  # the angle turned, about 2 pi
     assert math.remainder(b.pose[0, 2] - theta0 - lap, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
     assert np.allclose(b.states()[0, 2:], v * np.array([np.cos(b.pose[0, 2]), np.sin(b.pose[0, 2])]))
 
@@ -151,8 +171,13 @@ def test_base_drives_a_circle_of_radius_v_over_omega(theta0):
 def test_base_enforces_its_limits_like_a_real_one():
     """Speed and turn rate ramp at the acceleration limits to the speed limits and stay there;
     the initial speed is saturated; a stop brakes at the same rate."""
-    b = _bases([[0.0, 0.0, 0.0, 3.0]], max_linear_speed=0.5, max_angular_speed=1.8, max_linear_accel=1.0,
-               max_angular_accel=4.0)
+    b = _bases(
+        [[0.0, 0.0, 0.0, 3.0]],
+        max_linear_speed=0.5,
+        max_angular_speed=1.8,
+        max_linear_accel=1.0,
+        max_angular_accel=4.0,
+    )
     assert b.speed[0] == 0.5 and b.pose[0, 2] == pytest.approx(np.pi / 2)
     b.speed[0] = 0.0
     speeds, turns = [], []
@@ -168,28 +193,50 @@ def test_base_enforces_its_limits_like_a_real_one():
         assert before - b.speed[0] == pytest.approx(0.01)
     # The agent's mapping clamps with the same function: same limits, same numbers.
     from knode_swarm_ros.core.unicycle import limit_twist
-    lim = UnicycleLimits(max_linear_speed=0.5, max_angular_speed=1.8, max_linear_accel=1.0, max_angular_accel=4.0)
+
+    lim = UnicycleLimits(
+        max_linear_speed=0.5, max_angular_speed=1.8, max_linear_accel=1.0, max_angular_accel=4.0
+    )
     assert limit_twist(5.0, -9.0, 0.2, -1.0, lim, 0.01) == pytest.approx((0.21, -1.04))
-    assert np.allclose(limit_twist(np.array([5.0, 0.3]), np.array([-9.0, 1.0]), np.array([0.2, 0.3]),
-                                   np.array([-1.0, 1.0]), lim, 0.01), [[0.21, 0.3], [-1.04, 1.0]])
+    assert np.allclose(
+        limit_twist(
+            np.array([5.0, 0.3]),
+            np.array([-9.0, 1.0]),
+            np.array([0.2, 0.3]),
+            np.array([-1.0, 1.0]),
+            lim,
+            0.01,
+        ),
+        [[0.21, 0.3], [-1.04, 1.0]],
+    )
 
 
 def test_swarm_sim_with_unicycles_records_the_world_velocity_and_brakes_a_silent_robot():
-    from knode_swarm_ros.nodes.simulator_logic import SwarmSim
     from knode_swarm_ros.core.unicycle import UnicycleRobots
+    from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
+
     z0 = np.array([[0.0, 0.0, 1.0, 0.0], [3.0, 0.0, 0.0, -0.5]])
-    sim = SwarmSim('flock2d', z0, 0.05, 'realtime', command_timeout=0.1,
-                   robot=UnicycleRobots(z0, UnicycleLimits(max_linear_accel=2.0)))
+    sim = SwarmSim(
+        'flock2d',
+        z0,
+        0.05,
+        'realtime',
+        command_timeout=0.1,
+        robot=UnicycleRobots(z0, UnicycleLimits(max_linear_accel=2.0)),
+    )
     assert np.allclose(sim.states, z0, atol=1e-15)
     assert sim.offer(0, sim.stamp_ns, [1.0, 0.0]) == 'accepted'
     for _ in range(5):
         sim.offer(0, sim.stamp_ns, [1.0, 0.0])
         sim.advance()
     assert np.allclose(sim.states[0], [0.25, 0.0, 1.0, 0.0])
-    assert np.allclose(sim.states[1, 3], 0.0) and sim.states[1, 1] == pytest.approx(-0.05)  # 0.05 s x (0.4 + 0.3 + 0.2 + 0.1)
-    assert sim.counters.zeroed == 5                                     # robot 1 never commanded: braked
-    assert np.array_equal(sim.stop_commands(), np.zeros((2, 2)))         # a base's stop: (v, omega) = 0 each
-    from knode_swarm_ros.nodes.common import ConfigError
+    assert np.allclose(sim.states[1, 3], 0.0) and sim.states[1, 1] == pytest.approx(
+        -0.05
+    )  # 0.05 s x (0.4 + 0.3 + 0.2 + 0.1)
+    assert sim.counters.zeroed == 5  # robot 1 never commanded: braked
+    assert np.array_equal(sim.stop_commands(), np.zeros((2, 2)))  # a base's stop: (v, omega) = 0 each
+    from knode_swarm_ros.logic.common import ConfigError
+
     with pytest.raises(ConfigError, match='robot_model'):
         SwarmSim('flock2d', z0, 0.05, ground_truth=object(), robot=UnicycleRobots(z0, UnicycleLimits()))
 
@@ -200,18 +247,21 @@ def test_unicycle_odometry_round_trip_in_the_body_frame(theta):
     robot_i/base_link) reads back as the world velocity v (cos, sin) of the heading in every
     quadrant, and as the point ahead of core.unicycle.point_state."""
     from knode_swarm_ros.core.unicycle import point_state
-    from knode_swarm_ros.nodes.conversions import fields_to_cdr, odom_fields_from_cdr, odom_from_cdr
-    from knode_swarm_ros.nodes.odom_mapping import fields_to_point_state, unicycle_fields, yaw_of
+    from knode_swarm_ros.logic.contract.rep105 import fields_to_point_state, unicycle_fields, yaw_of
+    from knode_swarm_ros.nodes.common.conversions import fields_to_cdr, odom_fields_from_cdr, odom_from_cdr
+
     pose, v, w = np.array([1.5, -0.5, theta]), 0.7, -1.3
     data = fields_to_cdr(4, 123_000_000, *unicycle_fields(pose, v, w))
     ns, child, z = odom_from_cdr(data, 'flock2d')
     assert ns == 123_000_000 and child == 'robot_4/base_link'
     assert np.allclose(z, [1.5, -0.5, v * np.cos(theta), v * np.sin(theta)], atol=1e-15)
     _, _, p, lin, ang = odom_fields_from_cdr(data)
-    assert lin == (v, 0.0, 0.0) and ang == (0.0, 0.0, w)                # body frame: forward speed, yaw rate
+    assert lin == (v, 0.0, 0.0) and ang == (0.0, 0.0, w)  # body frame: forward speed, yaw rate
     assert math.remainder(yaw_of(p[3:]) - theta, 2 * math.pi) == pytest.approx(0.0, abs=1e-15)
-    assert np.allclose(fields_to_point_state(p[:3], p[3:], lin, ang, 0.2), point_state(pose, v, w, 0.2), atol=1e-15)
-    world = odom_from_cdr(data, 'flock2d', 'world')[2]                  # read as if not REP 105: wrong
+    assert np.allclose(
+        fields_to_point_state(p[:3], p[3:], lin, ang, 0.2), point_state(pose, v, w, 0.2), atol=1e-15
+    )
+    world = odom_from_cdr(data, 'flock2d', 'world')[2]  # read as if not REP 105: wrong
     assert np.allclose(world[2:], [v, 0.0])
 
 

@@ -39,6 +39,7 @@ Operators left out (``EXCLUDED``): bitwise/shift replacements of arithmetic oper
 ``is``/``is not`` swaps of value comparisons. On the float arrays and tensors of this code
 they raise TypeError at once, so they tell nothing.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,8 +55,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-EXCLUDED = [r'core/ReplaceBinaryOperator_\w+_(BitOr|BitAnd|BitXor|LShift|RShift)$',
-            r'core/ReplaceComparisonOperator_(Eq|NotEq|Lt|LtE|Gt|GtE)_(Is|IsNot)$']
+EXCLUDED = [
+    r'core/ReplaceBinaryOperator_\w+_(BitOr|BitAnd|BitXor|LShift|RShift)$',
+    r'core/ReplaceComparisonOperator_(Eq|NotEq|Lt|LtE|Gt|GtE)_(Is|IsNot)$',
+]
 # The test pool the coverage run maps: every fast test file except those that only drive
 # other processes (colcon build, a throw-away suite) and the ROS ones (-m "not ros").
 POOL_EXCLUDE = ('test_ros_', 'test_launcher_basics', 'test_colcon_layout', 'test_no_silent_skips')
@@ -78,8 +81,12 @@ MODULES = _modules()
 
 def _copy_tree(dest: Path) -> None:
     """Tracked and untracked-but-not-ignored files of the checkout, copied to ``dest``."""
-    files = subprocess.run(['git', 'ls-files', '-z', '--cached', '--others', '--exclude-standard'],
-                           cwd=ROOT, check=True, capture_output=True).stdout.split(b'\0')
+    files = subprocess.run(
+        ['git', 'ls-files', '-z', '--cached', '--others', '--exclude-standard'],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+    ).stdout.split(b'\0')
     if dest.exists():
         shutil.rmtree(dest)
     for name in filter(None, files):
@@ -91,22 +98,50 @@ def _copy_tree(dest: Path) -> None:
 
 def coverage_map(tree: Path, out: Path) -> dict:
     """Run the test pool once under ``tools/mutation_cov.py``; ``{'lines', 'durations'}``."""
-    pool = sorted(f'tests/{p.name}' for p in (tree / 'tests').glob('test_*.py')
-                  if not p.name.startswith(POOL_EXCLUDE))
+    pool = sorted(
+        f'tests/{p.name}' for p in (tree / 'tests').glob('test_*.py') if not p.name.startswith(POOL_EXCLUDE)
+    )
     env = dict(os.environ, MUTATION_COV_OUT=str(out))
-    subprocess.run([sys.executable, '-m', 'pytest', '-p', 'tools.mutation_cov', '-q', '-p',
-                    'no:cacheprovider', '-m', 'not ros', *pool], cwd=tree, env=env,
-                   stdout=subprocess.DEVNULL, check=False)
+    subprocess.run(
+        [
+            sys.executable,
+            '-m',
+            'pytest',
+            '-p',
+            'tools.mutation_cov',
+            '-q',
+            '-p',
+            'no:cacheprovider',
+            '-m',
+            'not ros',
+            *pool,
+        ],
+        cwd=tree,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        check=False,
+    )
     return json.loads(out.read_text())
 
 
 def _config(module: str, timeout: float) -> str:
     # cosmic-ray needs a test command in its config; this script runs the tests itself.
-    return '\n'.join([
-        '[cosmic-ray]', f'module-path = "{module}"', f'timeout = {timeout}', 'excluded-modules = []',
-        'test-command = "python -m pytest -x -m \\"not ros\\" tests"', '',
-        '[cosmic-ray.distributor]', 'name = "local"', '',
-        '[cosmic-ray.filters.operators-filter]', f'exclude-operators = {json.dumps(EXCLUDED)}', ''])
+    return '\n'.join(
+        [
+            '[cosmic-ray]',
+            f'module-path = "{module}"',
+            f'timeout = {timeout}',
+            'excluded-modules = []',
+            'test-command = "python -m pytest -x -m \\"not ros\\" tests"',
+            '',
+            '[cosmic-ray.distributor]',
+            'name = "local"',
+            '',
+            '[cosmic-ray.filters.operators-filter]',
+            f'exclude-operators = {json.dumps(EXCLUDED)}',
+            '',
+        ]
+    )
 
 
 def _tool(name: str) -> str:
@@ -121,6 +156,7 @@ def _importers(tree: Path, module: str, tests) -> set:
 
     def names(text: str) -> bool:
         return dotted in text or any(re.search(rf'\b{stem}\b', g) for g in from_import.findall(text))
+
     files = {t.split('::')[0] for t in tests}
     named = {f for f in files if names((tree / f).read_text())}
     return {t for t in tests if t.split('::')[0] in named}
@@ -166,13 +202,26 @@ def _run_tests(tree: Path, tests, timeout: float, log: Path):
             sys.path.insert(0, str(tree))
             sys.dont_write_bytecode = True
             import pytest
+
             # --assert=plain: no rewriting of the test modules (1.4 s a run without .pyc
             # files; a failing assert fails the same); no:unraisableexception: its
             # gc.collect() over torch's heap costs 1.5 s a run.
-            rc = pytest.main(['-x', '-q', '-p', 'no:cacheprovider', '-p', 'no:unraisableexception',
-                              '--assert=plain', '-m', 'not ros', f'--basetemp={tree.parent / "tmp"}',
-                              *tests])
-        except BaseException:  # noqa: BLE001 - any escape is a failed run
+            rc = pytest.main(
+                [
+                    '-x',
+                    '-q',
+                    '-p',
+                    'no:cacheprovider',
+                    '-p',
+                    'no:unraisableexception',
+                    '--assert=plain',
+                    '-m',
+                    'not ros',
+                    f'--basetemp={tree.parent / "tmp"}',
+                    *tests,
+                ]
+            )
+        except BaseException:
             rc = 3
         sys.stdout.flush()
         sys.stderr.flush()
@@ -199,15 +248,23 @@ def _sample(work_db, size: int, seed: int) -> None:
     import random
 
     from cosmic_ray.work_item import WorkerOutcome, WorkResult
+
     # cosmic-ray's job ids are random: order by what the mutant is, so a seed draws the same sample
-    key = lambda it: (str(it.mutations[0].module_path), tuple(it.mutations[0].start_pos),  # noqa: E731
-                      it.mutations[0].operator_name, it.mutations[0].occurrence)
+    def key(it):
+        return (
+            str(it.mutations[0].module_path),
+            tuple(it.mutations[0].start_pos),
+            it.mutations[0].operator_name,
+            it.mutations[0].occurrence,
+        )
+
     pending = [it.job_id for it in sorted(work_db.pending_work_items, key=key)]
     keep = set(random.Random(seed).sample(pending, min(size, len(pending))))
     for job_id in pending:
         if job_id not in keep:
-            work_db.set_result(job_id, WorkResult(output='not in the sample',
-                                                  worker_outcome=WorkerOutcome.SKIPPED))
+            work_db.set_result(
+                job_id, WorkResult(output='not in the sample', worker_outcome=WorkerOutcome.SKIPPED)
+            )
 
 
 def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, seed: int = 0) -> dict:
@@ -239,7 +296,7 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
             try:
                 mutation = use_mutation(tree / m.module_path, operator, m.occurrence)
                 mutated = mutation.__enter__()[1]
-            except Exception as exc:  # noqa: BLE001 - an operator that cannot apply (a cosmic-ray bug)
+            except Exception as exc:
                 mutation, mutated, rc = None, None, f'operator failed: {exc!r}'
             try:
                 if mutation is None:
@@ -252,8 +309,9 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                         more = [t for t in _confirm_pool(cov, module, tree) if t not in set(tests)]
                         if more:
                             tests, mode = tests + more, 'confirmed'
-                            rc = _run_tests(tree, more, 5 * sum(cov['durations'].get(t, 1.0) for t in more)
-                                            + 300, log)
+                            rc = _run_tests(
+                                tree, more, 5 * sum(cov['durations'].get(t, 1.0) for t in more) + 300, log
+                            )
                     if rc == 4 and 'ERROR collecting' in log.read_text():
                         rc = 2  # the mutant broke an import: pytest says "no collectors" (4)
             finally:
@@ -261,22 +319,33 @@ def run_module(tree: Path, name: str, module: str, cov: dict, sample: int = 0, s
                     mutation.__exit__(None, None, None)  # the original file back
             if rc in (0, 1, 2, 3, 'signal'):
                 outcome = TestOutcome.SURVIVED if rc == 0 else TestOutcome.KILLED
-                result = WorkResult(worker_outcome=WorkerOutcome.NORMAL, test_outcome=outcome,
-                                    output=f'{mode}, {len(tests)} tests, exit {rc}')
+                result = WorkResult(
+                    worker_outcome=WorkerOutcome.NORMAL,
+                    test_outcome=outcome,
+                    output=f'{mode}, {len(tests)} tests, exit {rc}',
+                )
                 counts['survived' if rc == 0 else 'killed'] += 1
             elif rc == 'timeout':
-                result = WorkResult(worker_outcome=WorkerOutcome.ABNORMAL, test_outcome=TestOutcome.KILLED,
-                                    output=f'timeout: {mode}, {len(tests)} tests, over {budget:.0f} s')
+                result = WorkResult(
+                    worker_outcome=WorkerOutcome.ABNORMAL,
+                    test_outcome=TestOutcome.KILLED,
+                    output=f'timeout: {mode}, {len(tests)} tests, over {budget:.0f} s',
+                )
                 counts['timeout'] += 1
             else:  # pytest usage error / nothing collected / no mutation: our problem, not a kill
                 tail = log.read_text()[-2000:] if log.exists() else ''
-                result = WorkResult(worker_outcome=WorkerOutcome.EXCEPTION,
-                                    test_outcome=TestOutcome.INCOMPETENT, output=f'{rc}\n{tail}')
+                result = WorkResult(
+                    worker_outcome=WorkerOutcome.EXCEPTION,
+                    test_outcome=TestOutcome.INCOMPETENT,
+                    output=f'{rc}\n{tail}',
+                )
                 counts['incompetent'] += 1
             work_db.set_result(item.job_id, result)
             if rc == 0:
-                survivors.append(f'{m.module_path}:{m.start_pos[0]} {m.operator_name.split("/")[-1]} '
-                                 f'#{m.occurrence} ({mode})')
+                survivors.append(
+                    f'{m.module_path}:{m.start_pos[0]} {m.operator_name.split("/")[-1]} '
+                    f'#{m.occurrence} ({mode})'
+                )
     return {'counts': counts, 'survivors': survivors, 'mutants_in_module': total}
 
 
@@ -293,17 +362,26 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--only', default='', help=f'comma-separated subset of: {",".join(MODULES)}')
     ap.add_argument('--workdir', type=Path, default=ROOT / 'out' / 'mutation')
-    ap.add_argument('--sample', type=int, default=0,
-                    help='run only this many mutants per module, drawn at random (0: all)')
+    ap.add_argument(
+        '--sample',
+        type=int,
+        default=0,
+        help='run only this many mutants per module, drawn at random (0: all)',
+    )
     ap.add_argument('--seed', type=int, default=0, help='seed of --sample')
-    ap.add_argument('--reuse-coverage', action='store_true',
-                    help='reuse <workdir>/coverage.json from an earlier run of the same tree')
+    ap.add_argument(
+        '--reuse-coverage',
+        action='store_true',
+        help='reuse <workdir>/coverage.json from an earlier run of the same tree',
+    )
     args = ap.parse_args(argv)
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # unwind: restore the file, end the run
     names = [n for n in args.only.split(',') if n] or list(MODULES)
     unknown = [n for n in names if n not in MODULES]
     if unknown:
-        print(f'mutation: unknown module(s) in --only: {unknown}; choose from {list(MODULES)}', file=sys.stderr)
+        print(
+            f'mutation: unknown module(s) in --only: {unknown}; choose from {list(MODULES)}', file=sys.stderr
+        )
         return 2
     workdir = args.workdir.resolve()
     tree = workdir / 'tree'
@@ -321,6 +399,7 @@ def main(argv=None) -> int:
     import numpy  # noqa: F401 - imported once here, inherited by every forked test run
     import pytest  # noqa: F401
     import torch
+
     torch.set_num_threads(1)
     gc.freeze()  # the forked runs neither scan nor copy the parent's objects
     results, ok, t_all, n_all = {}, True, time.monotonic(), 0
@@ -336,9 +415,12 @@ def main(argv=None) -> int:
         n_run = c['killed'] + c['timeout'] + c['survived'] + c['incompetent']
         n_all += n_run
         lo, hi = wilson(c['killed'] + c['timeout'], c['killed'] + c['timeout'] + c['survived'])
-        print(f'{name:18s} of {r["mutants_in_module"]:4d}: killed {c["killed"]:3d} timeout {c["timeout"]:2d} '
-              f'survived {c["survived"]:2d} incompetent {c["incompetent"]:2d} fallback {c["fallback"]:2d} '
-              f'[{100 * lo:.0f}, {100 * hi:.0f}] % ({time.monotonic() - t1:.0f} s)', flush=True)
+        print(
+            f'{name:18s} of {r["mutants_in_module"]:4d}: killed {c["killed"]:3d} timeout {c["timeout"]:2d} '
+            f'survived {c["survived"]:2d} incompetent {c["incompetent"]:2d} fallback {c["fallback"]:2d} '
+            f'[{100 * lo:.0f}, {100 * hi:.0f}] % ({time.monotonic() - t1:.0f} s)',
+            flush=True,
+        )
     minutes = (time.monotonic() - t_all) / 60
     (workdir / 'results.json').write_text(json.dumps(results, indent=1))
     tot = {k: sum(r['counts'][k] for r in results.values()) for k in ('killed', 'timeout', 'survived')}
@@ -346,8 +428,10 @@ def main(argv=None) -> int:
     n = caught + tot['survived']
     lo, hi = wilson(caught, n)
     interval = f' (95 % interval {100 * lo:.1f} to {100 * hi:.1f}, sampled)' if args.sample else ''
-    print(f'\nmutation score {100 * caught / max(n, 1):.1f} %{interval}: {caught} caught, {tot["survived"]} '
-          f'survived; {n_all} mutants in {minutes:.1f} min ({n_all / max(minutes, 1e-9):.1f} per minute)')
+    print(
+        f'\nmutation score {100 * caught / max(n, 1):.1f} %{interval}: {caught} caught, {tot["survived"]} '
+        f'survived; {n_all} mutants in {minutes:.1f} min ({n_all / max(minutes, 1e-9):.1f} per minute)'
+    )
     for r in results.values():
         for s in r['survivors']:
             print(f'  survived: {s}')

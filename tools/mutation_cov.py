@@ -9,6 +9,7 @@ empty context. Writes ``{"lines": {file: {line: [test ids]}}, "durations": {test
 Code run in child processes or only inside TorchScript is not seen: the mutation runner
 falls back to every test of the module for such lines.
 """
+
 import json
 import os
 from pathlib import Path

@@ -19,6 +19,7 @@ build (16 nvidia-* packages: a 5.2 GB venv, 707 MB of private memory per agent i
 resolves (the CUDA build on Linux x86_64, for training on a GPU). Only the standard library is
 used; pip is the venv's own (``python -m pip``).
 """
+
 from __future__ import annotations
 
 import json
@@ -61,8 +62,9 @@ def is_cpu_build(item: dict) -> bool:
 def _pip(args: List[str]) -> tuple:
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp) / 'report.json'
-        proc = subprocess.run([sys.executable, '-m', 'pip', *args, '--report', str(report)],
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, '-m', 'pip', *args, '--report', str(report)], capture_output=True, text=True
+        )
         data = json.loads(report.read_text()) if report.is_file() else None
     return proc.returncode, data, proc.stderr
 
@@ -102,12 +104,15 @@ def choose(pin: str, pip: PipRunner = _pip, cpu_index: str = CPU_INDEX) -> List[
         print(f'torch: the configured sources give {why}; using {describe(second)}')
         return ['install', '--no-deps', pin, '--index-url', cpu_index]
     found = describe(first) if first is not None else f'no {pin} at all'
-    print(f'tools/torch_build.py: error: no CPU build of {pin} is reachable: the configured package sources '
-          f'give {found}, and PyTorch\'s CPU index {cpu_index} gave '
-          f'{describe(second) if second is not None else "nothing (unreachable?)"}.\n'
-          '  Either make the CPU index reachable (or set TORCH_CPU_INDEX to a mirror of it), or put the CPU '
-          f'wheel into a folder and add it with PIP_FIND_LINKS, or accept the CUDA build '
-          '(several GB; for training on a GPU) with TORCH_BUILD=cuda.', file=sys.stderr)
+    print(
+        f'tools/torch_build.py: error: no CPU build of {pin} is reachable: the configured package sources '
+        f"give {found}, and PyTorch's CPU index {cpu_index} gave "
+        f'{describe(second) if second is not None else "nothing (unreachable?)"}.\n'
+        '  Either make the CPU index reachable (or set TORCH_CPU_INDEX to a mirror of it), or put the CPU '
+        f'wheel into a folder and add it with PIP_FIND_LINKS, or accept the CUDA build '
+        '(several GB; for training on a GPU) with TORCH_BUILD=cuda.',
+        file=sys.stderr,
+    )
     raise SystemExit(2)
 
 
@@ -117,7 +122,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f'torch: TORCH_BUILD={build}: installing what pip resolves for the pin (no CPU check)')
         return 0
     if build != 'cpu':
-        print(f'tools/torch_build.py: error: TORCH_BUILD={build!r}: use cpu (default) or cuda', file=sys.stderr)
+        print(
+            f'tools/torch_build.py: error: TORCH_BUILD={build!r}: use cpu (default) or cuda', file=sys.stderr
+        )
         return 2
     pin = torch_pin()
     args = choose(pin, cpu_index=os.environ.get('TORCH_CPU_INDEX', CPU_INDEX))

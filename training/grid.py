@@ -14,6 +14,7 @@ training. Writes ``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``
 under ``--out`` (boids3d: amd, POD-KLD, share of boids leaving the cube, share of rollouts with
 an escape, subswarms).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,79 +29,114 @@ import torch
 from knode_swarm_ros.core import get_scenario, load_policy
 from knode_swarm_ros.core.cli import cli, parse_set
 from knode_swarm_ros.core.errors import KnodeError
+from training.assessment.scores import final_metrics, perturbed_starts, rollout_policy
+from training.learning.config import load_config
+from training.learning.records import write_json
+from training.learning.trainer import DivergenceError, Trainer
 
-from . import figures
-from .config import load_config
-from .records import write_json
-from .scores import final_metrics, perturbed_starts, rollout_policy
-from .trainer import DivergenceError, Trainer
+from .assessment import figures
 
 
 def cell_name(d_cr: float, k: int) -> str:
-    return f"dcr{d_cr:g}_k{k}"
+    return f'dcr{d_cr:g}_k{k}'
 
 
-def evaluate_cell(policy_path: str, data_path: str, trajectories: int, rollouts: int = 1, perturb: float = 1e-3,
-                  steps: Optional[int] = None) -> Dict[str, Any]:
+def evaluate_cell(
+    policy_path: str,
+    data_path: str,
+    trajectories: int,
+    rollouts: int = 1,
+    perturb: float = 1e-3,
+    steps: Optional[int] = None,
+) -> Dict[str, Any]:
     """Metrics of a cell's policy: ``rollouts`` rollouts from each of the first ``trajectories`` test
     starts (:func:`perturbed_starts`) over ``steps`` steps (default: the test trajectories' length),
     each compared with its start's ground truth. boids3d adds
-    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.scaling`."""
+    the share of boids leaving the cube (``escaped``) and the subswarms of :mod:`training.assessment.scaling`."""
     from knode_swarm_ros.core import load_trajectories
+
     policy = load_policy(policy_path)
     spec = get_scenario(policy.scenario)
     data = load_trajectories(data_path)
-    truth = data.states[data.split("test")[:trajectories]]
-    truth = truth if steps is None else truth[:, :steps + 1]
+    truth = data.states[data.split('test')[:trajectories]]
+    truth = truth if steps is None else truth[:, : steps + 1]
     z0 = perturbed_starts(truth[:, 0], rollouts, perturb, spec.position_dim)
     pred = rollout_policy(policy, z0, truth.shape[1] - 1)
     truth = np.repeat(truth, rollouts, axis=0)
-    if spec.name == "boids3d":
-        from .scaling import size_metrics
+    if spec.name == 'boids3d':
+        from training.assessment.scaling import size_metrics
+
         return size_metrics(pred, truth, policy.dt)
     return final_metrics(spec, pred, truth, dt=policy.dt)
 
 
-def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectories: int, log=print,
-             rollouts: int = 1, perturb: float = 1e-3, steps: Optional[int] = None) -> Optional[Dict]:
+def run_cell(
+    cfg: Dict[str, Any],
+    data_path: str,
+    cell_dir: str,
+    test_trajectories: int,
+    log=print,
+    rollouts: int = 1,
+    perturb: float = 1e-3,
+    steps: Optional[int] = None,
+) -> Optional[Dict]:
     """Train and evaluate one cell unless finished or claimed by another process.
 
     A finished cell evaluated with other settings (``cell.json`` → ``evaluation``) is evaluated
     again from its ``policy.pt`` without training.
     """
-    done = os.path.join(cell_dir, "cell.json")
-    evaluation = {"trajectories": test_trajectories, "rollouts": rollouts, "perturb": perturb if rollouts > 1 else 0.0}
+    done = os.path.join(cell_dir, 'cell.json')
+    evaluation = {
+        'trajectories': test_trajectories,
+        'rollouts': rollouts,
+        'perturb': perturb if rollouts > 1 else 0.0,
+    }
     if steps is not None:
-        evaluation["steps"] = steps
+        evaluation['steps'] = steps
     previous = json.load(open(done)) if os.path.exists(done) else None
-    if previous is not None and (previous.get("evaluation") == evaluation or "error" in previous):
+    if previous is not None and (previous.get('evaluation') == evaluation or 'error' in previous):
         return previous
     os.makedirs(cell_dir, exist_ok=True)
-    lock = os.path.join(cell_dir, ".lock")
+    lock = os.path.join(cell_dir, '.lock')
     try:
         fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
     except FileExistsError:
-        log(f"{cell_dir}: claimed by another process (remove {lock} if that process died)")
+        log(f'{cell_dir}: claimed by another process (remove {lock} if that process died)')
         return None
     try:
         os.write(fd, str(os.getpid()).encode())
         os.close(fd)
-        result: Dict[str, Any] = {"d_cr": cfg["policy"]["d_cr"], "k": cfg["policy"]["k"], "evaluation": evaluation}
+        result: Dict[str, Any] = {
+            'd_cr': cfg['policy']['d_cr'],
+            'k': cfg['policy']['k'],
+            'evaluation': evaluation,
+        }
         if previous is None:
-            resume = os.path.exists(os.path.join(cell_dir, "checkpoint.pt"))
+            resume = os.path.exists(os.path.join(cell_dir, 'checkpoint.pt'))
             try:
                 Trainer(cfg, data_path, cell_dir, resume=resume, progress=False, log=lambda *a: None).run()
             except DivergenceError as exc:
-                result["error"] = str(exc)
-        summary = os.path.join(cell_dir, "summary.json")
+                result['error'] = str(exc)
+        summary = os.path.join(cell_dir, 'summary.json')
         if os.path.exists(summary):
-            result["training"] = {k: v for k, v in json.load(open(summary)).items()
-                                  if k in ("epochs", "selected", "train_seconds")}
-        if "error" not in result:
-            result.update(evaluate_cell(os.path.join(cell_dir, "policy.pt"), data_path, test_trajectories,
-                                        rollouts, perturb, steps))
+            result['training'] = {
+                k: v
+                for k, v in json.load(open(summary)).items()
+                if k in ('epochs', 'selected', 'train_seconds')
+            }
+        if 'error' not in result:
+            result.update(
+                evaluate_cell(
+                    os.path.join(cell_dir, 'policy.pt'),
+                    data_path,
+                    test_trajectories,
+                    rollouts,
+                    perturb,
+                    steps,
+                )
+            )
         write_json(done, result)
-        log(f"{cell_dir}: done")
+        log(f'{cell_dir}: done')
         return result
     finally:
         if os.path.exists(lock):
@@ -109,14 +145,21 @@ def run_cell(cfg: Dict[str, Any], data_path: str, cell_dir: str, test_trajectori
 
 #: Heat-map metrics per scenario: name -> statistics. ``left_cube``: share of rollouts in which a boid
 #: leaves the cube (a 0/1 per rollout, so only its mean).
-GRID_METRICS = {"flock2d": {"avd_final": ("mean", "median"), "amd_final": ("mean", "median")},
-                "boids3d": {"amd_final": ("mean", "median"), "pod_kld": ("mean", "median"),
-                            "escaped": ("mean",), "left_cube": ("mean",), "subswarms": ("mean", "median")}}
+GRID_METRICS = {
+    'flock2d': {'avd_final': ('mean', 'median'), 'amd_final': ('mean', 'median')},
+    'boids3d': {
+        'amd_final': ('mean', 'median'),
+        'pod_kld': ('mean', 'median'),
+        'escaped': ('mean',),
+        'left_cube': ('mean',),
+        'subswarms': ('mean', 'median'),
+    },
+}
 
 
 def _cell_values(cell: Dict[str, Any], name: str) -> Optional[np.ndarray]:
-    if name == "left_cube":              # boids3d cells: no_boid_leaves (training.scaling.leaving)
-        key = "no_boid_leaves" if "no_boid_leaves" in cell else "stays_inside"
+    if name == 'left_cube':  # boids3d cells: no_boid_leaves (training.assessment.scaling.leaving)
+        key = 'no_boid_leaves' if 'no_boid_leaves' in cell else 'stays_inside'
         if key in cell:
             return 1.0 - np.asarray(cell[key], dtype=np.float64)
     return np.asarray(cell[name], dtype=np.float64) if name in cell else None
@@ -126,7 +169,7 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
     cells = {}
     for d in d_crs:
         for k in ks:
-            path = os.path.join(out, cell_name(d, k), "cell.json")
+            path = os.path.join(out, cell_name(d, k), 'cell.json')
             if os.path.exists(path):
                 cells[(d, k)] = json.load(open(path))
     tables: Dict[str, Any] = {}
@@ -134,7 +177,7 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
     for name, stats in GRID_METRICS[scenario].items():
         quart = np.full((len(d_crs), len(ks), 2), np.nan)
         for stat in stats:
-            fn = np.mean if stat == "mean" else np.median
+            fn = np.mean if stat == 'mean' else np.median
             grid = np.full((len(d_crs), len(ks)), np.nan)
             for i, d in enumerate(d_crs):
                 for j, k in enumerate(ks):
@@ -143,72 +186,104 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
                     if v is not None and v.size:
                         grid[i, j] = fn(v)
                         quart[i, j] = np.percentile(v, [25, 75])
-            tables[f"{name}_{stat}"] = grid.tolist()
-            figures.heatmap(os.path.join(out, f"heatmap_{name}_{stat}.png"), grid, d_crs, ks,
-                            f"{stat} {name.replace('_final', ' (final)')}")
+            tables[f'{name}_{stat}'] = grid.tolist()
+            figures.heatmap(
+                os.path.join(out, f'heatmap_{name}_{stat}.png'),
+                grid,
+                d_crs,
+                ks,
+                f'{stat} {name.replace("_final", " (final)")}',
+            )
         spread[name] = quart.tolist()
-    truth = next((c for c in cells.values() if "truth_amd_final" in c), None)
-    results = {"scenario": scenario, "d_cr": d_crs, "k": ks, "tables": tables, "quartiles": spread,
-               "finished": [cell_name(d, k) for (d, k) in cells],
-               "evaluation": {cell_name(d, k): c.get("evaluation") for (d, k), c in cells.items()},
-               "training": {cell_name(d, k): c.get("training") for (d, k), c in cells.items()},
-               "errors": {cell_name(d, k): c["error"] for (d, k), c in cells.items() if "error" in c},
-               "truth": None if truth is None else {key: float(np.mean(truth[key])) for key in truth if key.startswith("truth_")}}
-    write_json(os.path.join(out, "results.json"), results)
-    lines = [f"# Grid search: {scenario}", "", f"{len(cells)} of {len(d_crs) * len(ks)} cells finished.", ""]
+    truth = next((c for c in cells.values() if 'truth_amd_final' in c), None)
+    results = {
+        'scenario': scenario,
+        'd_cr': d_crs,
+        'k': ks,
+        'tables': tables,
+        'quartiles': spread,
+        'finished': [cell_name(d, k) for (d, k) in cells],
+        'evaluation': {cell_name(d, k): c.get('evaluation') for (d, k), c in cells.items()},
+        'training': {cell_name(d, k): c.get('training') for (d, k), c in cells.items()},
+        'errors': {cell_name(d, k): c['error'] for (d, k), c in cells.items() if 'error' in c},
+        'truth': None
+        if truth is None
+        else {key: float(np.mean(truth[key])) for key in truth if key.startswith('truth_')},
+    }
+    write_json(os.path.join(out, 'results.json'), results)
+    lines = [f'# Grid search: {scenario}', '', f'{len(cells)} of {len(d_crs) * len(ks)} cells finished.', '']
     for key, grid in tables.items():
-        name = key.rsplit("_", 1)[0]
-        lines += [f"## {key}" + (" [quartiles over rollouts]" if key.endswith("median") else ""), "",
-                  "| d_cr \\ k | " + " | ".join(map(str, ks)) + " |", "| --- " * (len(ks) + 1) + "|"]
+        name = key.rsplit('_', 1)[0]
+        lines += [
+            f'## {key}' + (' [quartiles over rollouts]' if key.endswith('median') else ''),
+            '',
+            '| d_cr \\ k | ' + ' | '.join(map(str, ks)) + ' |',
+            '| --- ' * (len(ks) + 1) + '|',
+        ]
         for i, (d, row) in enumerate(zip(d_crs, grid)):
             cells_txt = []
             for j, v in enumerate(row):
-                txt = "-" if not np.isfinite(v) else f"{v:.3g}"
-                if key.endswith("median") and np.isfinite(v):
-                    txt += f" [{spread[name][i][j][0]:.3g}, {spread[name][i][j][1]:.3g}]"
+                txt = '-' if not np.isfinite(v) else f'{v:.3g}'
+                if key.endswith('median') and np.isfinite(v):
+                    txt += f' [{spread[name][i][j][0]:.3g}, {spread[name][i][j][1]:.3g}]'
                 cells_txt.append(txt)
-            lines.append(f"| {d:g} | " + " | ".join(cells_txt) + " |")
-        lines.append("")
-    if results["truth"]:
-        lines.append("Ground truth: " + ", ".join(f"{k} {v:.3g}" for k, v in results["truth"].items()))
-    open(os.path.join(out, "summary.md"), "w").write("\n".join(lines) + "\n")
+            lines.append(f'| {d:g} | ' + ' | '.join(cells_txt) + ' |')
+        lines.append('')
+    if results['truth']:
+        lines.append('Ground truth: ' + ', '.join(f'{k} {v:.3g}' for k, v in results['truth'].items()))
+    open(os.path.join(out, 'summary.md'), 'w').write('\n'.join(lines) + '\n')
     return results
 
 
-@cli("python -m training.grid")
+@cli('python -m training.grid')
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m training.grid", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", required=True)
-    parser.add_argument("--data", required=True)
-    parser.add_argument("--out", required=True)
-    parser.add_argument("--d-cr", type=float, nargs="+", default=[2.0, 3.5, 5.0])
-    parser.add_argument("--k", type=int, nargs="+", default=[3, 6, 9])
-    parser.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override a config field")
-    parser.add_argument("--trajectories", type=int, default=20, help="test trajectories per cell evaluation")
-    parser.add_argument("--rollouts", type=int, default=1,
-                        help="rollouts per test start (copies > 0 with perturbed positions; default 1)")
-    parser.add_argument("--perturb", type=float, default=1e-3, help="std of the position perturbation (default 1e-3)")
-    parser.add_argument("--steps", type=int, default=None, help="evaluation steps (default: test trajectory length)")
-    parser.add_argument("--collect", action="store_true", help="only gather finished cells")
+    parser = argparse.ArgumentParser(prog='python -m training.grid', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--config', required=True)
+    parser.add_argument('--data', required=True)
+    parser.add_argument('--out', required=True)
+    parser.add_argument('--d-cr', type=float, nargs='+', default=[2.0, 3.5, 5.0])
+    parser.add_argument('--k', type=int, nargs='+', default=[3, 6, 9])
+    parser.add_argument('--set', action='append', metavar='SECTION.KEY=VALUE', help='override a config field')
+    parser.add_argument('--trajectories', type=int, default=20, help='test trajectories per cell evaluation')
+    parser.add_argument(
+        '--rollouts',
+        type=int,
+        default=1,
+        help='rollouts per test start (copies > 0 with perturbed positions; default 1)',
+    )
+    parser.add_argument(
+        '--perturb', type=float, default=1e-3, help='std of the position perturbation (default 1e-3)'
+    )
+    parser.add_argument(
+        '--steps', type=int, default=None, help='evaluation steps (default: test trajectory length)'
+    )
+    parser.add_argument('--collect', action='store_true', help='only gather finished cells')
     args = parser.parse_args(argv)
-    for name in ("trajectories", "rollouts", "steps"):
+    for name in ('trajectories', 'rollouts', 'steps'):
         if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise KnodeError(f"--{name} must be >= 1, got {getattr(args, name)}")
+            raise KnodeError(f'--{name} must be >= 1, got {getattr(args, name)}')
     if not (np.isfinite(args.perturb) and args.perturb >= 0):
-        raise KnodeError(f"--perturb must be a finite number >= 0, got {args.perturb}")
+        raise KnodeError(f'--perturb must be a finite number >= 0, got {args.perturb}')
     base = parse_set(args.set)
     cfg0 = load_config(args.config, base)
-    torch.set_num_threads(cfg0["training"]["threads"])
+    torch.set_num_threads(cfg0['training']['threads'])
     if not args.collect:
         for d in args.d_cr:
             for k in args.k:
-                cfg = load_config(args.config, {**base, "policy.d_cr": d, "policy.k": k})
-                run_cell(cfg, args.data, os.path.join(args.out, cell_name(d, k)), args.trajectories,
-                         rollouts=args.rollouts, perturb=args.perturb, steps=args.steps)
-    results = collect(args.out, cfg0["scenario"], args.d_cr, args.k)
-    print(f"{len(results['finished'])} cells finished; wrote {args.out}/results.json and heat maps")
+                cfg = load_config(args.config, {**base, 'policy.d_cr': d, 'policy.k': k})
+                run_cell(
+                    cfg,
+                    args.data,
+                    os.path.join(args.out, cell_name(d, k)),
+                    args.trajectories,
+                    rollouts=args.rollouts,
+                    perturb=args.perturb,
+                    steps=args.steps,
+                )
+    results = collect(args.out, cfg0['scenario'], args.d_cr, args.k)
+    print(f'{len(results["finished"])} cells finished; wrote {args.out}/results.json and heat maps')
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

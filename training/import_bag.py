@@ -13,11 +13,12 @@ resamples all robots onto one uniform grid at ``--rate`` (linear interpolation o
 keeps only the time where every robot is observed; cuts the recording where any robot is
 silent longer than ``--max-gap``; derives the velocities (flock2d) or unit headings (boids3d)
 that the bag does not carry; and writes the trajectory file with ``dt = 1 / rate``. The steps
-live in :mod:`training.bags`; docs/import_bag.md documents every choice.
+live in :mod:`training.data.bags`; docs/import_bag.md documents every choice.
 
 Exit status: 0 written; 2 bad input or command line (the message names the file, topic, frame
 or option; nothing is written).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,18 +26,32 @@ import sys
 from typing import List, Optional, Sequence
 
 from knode_swarm_ros.bag import ODOMETRY, BagError, open_bag
-from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
+from training.data.bags.derive import derive_states, finite_difference, moving_average
+from training.data.bags.options import (
+    GAP_FACTOR,
+    ImportOptions,
+    ImportResult,
+    check_options,
+    parse_id_map,
+    split_patterns,
+)
+from training.data.bags.report import build_meta, derivation, message_counts, summary_lines
+from training.data.bags.robots import read_robots
+from training.data.bags.timeline import segments, timeline, windows
 
-from .bags.derive import derive_states, finite_difference, moving_average
-from .bags.options import GAP_FACTOR, ImportOptions, ImportResult, check_options, parse_id_map, split_patterns
-from .bags.report import build_meta, derivation, message_counts, summary_lines
-from .bags.robots import read_robots
-from .bags.timeline import segments, timeline, windows
-
-__all__ = ["ImportOptions", "ImportResult", "import_bag", "main", "BagError", "parse_id_map",
-           "moving_average", "finite_difference"]
+__all__ = [
+    'ImportOptions',
+    'ImportResult',
+    'import_bag',
+    'main',
+    'BagError',
+    'parse_id_map',
+    'moving_average',
+    'finite_difference',
+]
 
 
 def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
@@ -54,95 +69,189 @@ def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
     if opts.use_twist:
         for r in robots:
             if r.lin is None:
-                raise BagError(f"{r.topic}: --use-twist needs {ODOMETRY}, but it carries {r.type_name}")
+                raise BagError(f'{r.topic}: --use-twist needs {ODOMETRY}, but it carries {r.type_name}')
     notes.extend(bag.notes)
 
     tl = timeline(robots, opts.max_gap, bag.path)
-    metas, kept = segments(tl, opts, dt, lambda t, label: derive_states(t, robots, opts, dt, notes, label), bag.path)
+    metas, kept = segments(
+        tl, opts, dt, lambda t, label: derive_states(t, robots, opts, dt, notes, label), bag.path
+    )
     states, traj_meta, T = windows(tl, metas, kept, opts.length, dt)
 
-    messages = message_counts(robots, tl, traj_meta, T, dt, info["ignored_sources"])
-    meta = build_meta(opts, bag, robots, info, tl, dt, metas, traj_meta, T, states.shape[0],
-                      derivation(opts, notes), messages, notes)
+    messages = message_counts(robots, tl, traj_meta, T, dt, info['ignored_sources'])
+    meta = build_meta(
+        opts,
+        bag,
+        robots,
+        info,
+        tl,
+        dt,
+        metas,
+        traj_meta,
+        T,
+        states.shape[0],
+        derivation(opts, notes),
+        messages,
+        notes,
+    )
     return ImportResult(states, dt, opts.scenario, meta, summary_lines(bag, robots, info, meta, states))
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m training.import_bag",
-        description="Import a recording of a swarm (rosbag2 sqlite3 or MCAP, ROS 1 bag) into a trajectory file (.npz).",
-        epilog="Details: docs/import_bag.md")
-    p.add_argument("bag", help="rosbag2 bag directory (metadata.yaml + .db3 or .mcap files), one .db3 or .mcap "
-                                "file, or a ROS 1 .bag file")
-    p.add_argument("--scenario", required=True, choices=("flock2d", "boids3d"))
-    p.add_argument("--topics", action="append", metavar="GLOB",
-                   help="topics holding the robots, shell-style glob (repeat or comma-separate), e.g. "
-                        "'/robot_*/odom'; default /tf with --frames, or the --id-map names")
-    p.add_argument("--frames", action="append", metavar="GLOB",
-                   help="child frames of tf2_msgs/TFMessage topics that are robots, e.g. 'cf*'")
-    p.add_argument("--rate", required=True, type=float, metavar="HZ", help="output rate; dt = 1 / rate")
-    p.add_argument("--out", required=True, metavar="FILE.npz", help="trajectory file to write")
-    p.add_argument("--id-map", action="append", metavar="NAME=ID|FILE.yaml",
-                   help="explicit robot ids (repeatable), or a YAML mapping NAME: ID; only these names are "
-                        "robots. Default: the first integer in each topic or frame name")
-    p.add_argument("--max-gap", type=float, metavar="SECONDS",
-                   help=f"a robot silent longer than this cuts the recording; default {GAP_FACTOR:g} x the "
-                        "slowest robot's median message interval")
-    p.add_argument("--min-duration", type=float, default=1.0, metavar="SECONDS",
-                   help="drop segments shorter than this (default 1.0)")
-    p.add_argument("--length", type=int, metavar="FRAMES",
-                   help="frames per trajectory; default the shortest kept segment. Longer segments are cut "
-                        "into windows sharing their boundary frame")
-    p.add_argument("--smooth", choices=("none", "moving-average", "savgol"), default="none",
-                   help="filter the finite-difference velocities (default none)")
-    p.add_argument("--smooth-window", type=int, default=5, metavar="N", help="odd window in output samples (5)")
-    p.add_argument("--smooth-order", type=int, default=2, metavar="K", help="Savitzky-Golay order (2)")
-    p.add_argument("--use-twist", action="store_true",
-                   help="velocities (flock2d) or headings (boids3d) from Odometry twist.twist.linear instead "
-                        "of finite differences")
-    p.add_argument("--twist-frame", choices=("world", "body"), default="body",
-                   help="frame of the twist: body (default; REP 105 child frame, rotated by the pose "
-                        "orientation, as this project's nodes and every robot driver publish it) or world")
-    p.add_argument("--use-orientation", action="store_true",
-                   help="boids3d: heading = +x axis of the pose orientation instead of the motion direction")
-    p.add_argument("--heading-diff", choices=("backward", "central"), default=None,
-                   help="boids3d: differences for the motion direction (default backward: the heading at "
-                        "frame k is the direction of the last step, as in the first-order rollout)")
-    p.add_argument("--min-speed", type=float, default=1e-3, metavar="M_PER_S",
-                   help="boids3d: frames slower than this take the nearest valid heading (default 0.001)")
-    p.add_argument("--stamp", choices=("header", "log"), default="header",
-                   help="time of a sample: header.stamp (default) or the bag's log (receive) time")
-    p.add_argument("--test-trajectories", type=int, default=0, metavar="K",
-                   help="hold out the last K trajectories as meta.split.test (default 0)")
+        prog='python -m training.import_bag',
+        description='Import a recording of a swarm (rosbag2 sqlite3 or MCAP, ROS 1 bag) into a trajectory file (.npz).',
+        epilog='Details: docs/import_bag.md',
+    )
+    p.add_argument(
+        'bag',
+        help='rosbag2 bag directory (metadata.yaml + .db3 or .mcap files), one .db3 or .mcap '
+        'file, or a ROS 1 .bag file',
+    )
+    p.add_argument('--scenario', required=True, choices=('flock2d', 'boids3d'))
+    p.add_argument(
+        '--topics',
+        action='append',
+        metavar='GLOB',
+        help='topics holding the robots, shell-style glob (repeat or comma-separate), e.g. '
+        "'/robot_*/odom'; default /tf with --frames, or the --id-map names",
+    )
+    p.add_argument(
+        '--frames',
+        action='append',
+        metavar='GLOB',
+        help="child frames of tf2_msgs/TFMessage topics that are robots, e.g. 'cf*'",
+    )
+    p.add_argument('--rate', required=True, type=float, metavar='HZ', help='output rate; dt = 1 / rate')
+    p.add_argument('--out', required=True, metavar='FILE.npz', help='trajectory file to write')
+    p.add_argument(
+        '--id-map',
+        action='append',
+        metavar='NAME=ID|FILE.yaml',
+        help='explicit robot ids (repeatable), or a YAML mapping NAME: ID; only these names are '
+        'robots. Default: the first integer in each topic or frame name',
+    )
+    p.add_argument(
+        '--max-gap',
+        type=float,
+        metavar='SECONDS',
+        help=f'a robot silent longer than this cuts the recording; default {GAP_FACTOR:g} x the '
+        "slowest robot's median message interval",
+    )
+    p.add_argument(
+        '--min-duration',
+        type=float,
+        default=1.0,
+        metavar='SECONDS',
+        help='drop segments shorter than this (default 1.0)',
+    )
+    p.add_argument(
+        '--length',
+        type=int,
+        metavar='FRAMES',
+        help='frames per trajectory; default the shortest kept segment. Longer segments are cut '
+        'into windows sharing their boundary frame',
+    )
+    p.add_argument(
+        '--smooth',
+        choices=('none', 'moving-average', 'savgol'),
+        default='none',
+        help='filter the finite-difference velocities (default none)',
+    )
+    p.add_argument(
+        '--smooth-window', type=int, default=5, metavar='N', help='odd window in output samples (5)'
+    )
+    p.add_argument('--smooth-order', type=int, default=2, metavar='K', help='Savitzky-Golay order (2)')
+    p.add_argument(
+        '--use-twist',
+        action='store_true',
+        help='velocities (flock2d) or headings (boids3d) from Odometry twist.twist.linear instead '
+        'of finite differences',
+    )
+    p.add_argument(
+        '--twist-frame',
+        choices=('world', 'body'),
+        default='body',
+        help='frame of the twist: body (default; REP 105 child frame, rotated by the pose '
+        "orientation, as this project's nodes and every robot driver publish it) or world",
+    )
+    p.add_argument(
+        '--use-orientation',
+        action='store_true',
+        help='boids3d: heading = +x axis of the pose orientation instead of the motion direction',
+    )
+    p.add_argument(
+        '--heading-diff',
+        choices=('backward', 'central'),
+        default=None,
+        help='boids3d: differences for the motion direction (default backward: the heading at '
+        'frame k is the direction of the last step, as in the first-order rollout)',
+    )
+    p.add_argument(
+        '--min-speed',
+        type=float,
+        default=1e-3,
+        metavar='M_PER_S',
+        help='boids3d: frames slower than this take the nearest valid heading (default 0.001)',
+    )
+    p.add_argument(
+        '--stamp',
+        choices=('header', 'log'),
+        default='header',
+        help="time of a sample: header.stamp (default) or the bag's log (receive) time",
+    )
+    p.add_argument(
+        '--test-trajectories',
+        type=int,
+        default=0,
+        metavar='K',
+        help='hold out the last K trajectories as meta.split.test (default 0)',
+    )
     return p
 
 
-@cli("python -m training.import_bag")
+@cli('python -m training.import_bag')
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.heading_diff is not None and args.scenario != "boids3d":
-        parser.error("argument --heading-diff: only for --scenario boids3d")
+    if args.heading_diff is not None and args.scenario != 'boids3d':
+        parser.error('argument --heading-diff: only for --scenario boids3d')
     try:  # a failure writes nothing (save_trajectories is atomic): say so
         opts = ImportOptions(
-            scenario=args.scenario, rate=args.rate, topics=split_patterns(args.topics),
-            frames=split_patterns(args.frames), id_map=parse_id_map(args.id_map) if args.id_map else None,
-            max_gap=args.max_gap, min_duration=args.min_duration, length=args.length, smooth=args.smooth,
-            smooth_window=args.smooth_window, smooth_order=args.smooth_order, use_twist=args.use_twist,
-            twist_frame=args.twist_frame, use_orientation=args.use_orientation,
-            heading_diff=args.heading_diff or "backward", min_speed=args.min_speed, stamp=args.stamp,
-            test_trajectories=args.test_trajectories)
+            scenario=args.scenario,
+            rate=args.rate,
+            topics=split_patterns(args.topics),
+            frames=split_patterns(args.frames),
+            id_map=parse_id_map(args.id_map) if args.id_map else None,
+            max_gap=args.max_gap,
+            min_duration=args.min_duration,
+            length=args.length,
+            smooth=args.smooth,
+            smooth_window=args.smooth_window,
+            smooth_order=args.smooth_order,
+            use_twist=args.use_twist,
+            twist_frame=args.twist_frame,
+            use_orientation=args.use_orientation,
+            heading_diff=args.heading_diff or 'backward',
+            min_speed=args.min_speed,
+            stamp=args.stamp,
+            test_trajectories=args.test_trajectories,
+        )
         result = import_bag(args.bag, opts)
-        meta = dict(result.meta, command=" ".join(["python -m training.import_bag"] + list(
-            sys.argv[1:] if argv is None else argv)))
+        meta = dict(
+            result.meta,
+            command=' '.join(
+                ['python -m training.import_bag'] + list(sys.argv[1:] if argv is None else argv)
+            ),
+        )
         save_trajectories(args.out, result.states, result.dt, result.scenario, meta)
     except (BagError, TrajectoryError, OSError) as exc:
-        raise KnodeError(f"{exc}; nothing written") from None
+        raise KnodeError(f'{exc}; nothing written') from None
     for line in result.summary:
         print(line)
-    print(f"wrote {args.out}: states {list(result.states.shape)} ({result.scenario}, dt {result.dt:.6g} s)")
+    print(f'wrote {args.out}: states {list(result.states.shape)} ({result.scenario}, dt {result.dt:.6g} s)')
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

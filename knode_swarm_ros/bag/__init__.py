@@ -9,17 +9,48 @@ imported only when a bag is opened or written, so robots don't need it.
 * :mod:`.writer`: :class:`BagWriter`, :func:`write_odometry_bag`;
 * :mod:`.qos`: the nodes' QoS profiles in rosbag2's format;
 * the orientation maths a pose needs (:func:`quaternion_to_heading`, :func:`rotate_by_quaternion`,
-  from :mod:`knode_swarm_ros.nodes.orientation`, ROS-free), so that bag users import one package.
+  from :mod:`knode_swarm_ros.logic.contract.orientation`, ROS-free), so that bag users import one package.
 
 ``training.import_bag`` turns bags into trajectory files; the recorder (``-p bag:=...``,
 ``swarm --bag``) writes them. docs/import_bag.md documents both.
 """
-from .messages import (ODOMETRY, POSE_STAMPED, SUPPORTED_TYPES, TF_MESSAGE, BagError, BagWriteError, Sample,
-                       normalise_type, ns_to_stamp, odometry_message, samples_of, stamp_to_ns)
-from ..nodes.orientation import quaternion_to_heading, rotate_by_quaternion
+
+from knode_swarm_ros.logic.contract.orientation import quaternion_to_heading, rotate_by_quaternion
+
+from .messages import (
+    ODOMETRY,
+    POSE_STAMPED,
+    SUPPORTED_TYPES,
+    TF_MESSAGE,
+    BagError,
+    BagWriteError,
+    Sample,
+    normalise_type,
+    ns_to_stamp,
+    odometry_message,
+    samples_of,
+    stamp_to_ns,
+)
 from .reader import Bag, open_bag
 from .writer import BagWriter, write_odometry_bag
 
-__all__ = ["ODOMETRY", "POSE_STAMPED", "TF_MESSAGE", "SUPPORTED_TYPES", "BagError", "BagWriteError", "Sample",
-           "normalise_type", "ns_to_stamp", "stamp_to_ns", "odometry_message", "samples_of", "Bag", "open_bag",
-           "BagWriter", "write_odometry_bag", "quaternion_to_heading", "rotate_by_quaternion"]
+__all__ = [
+    'ODOMETRY',
+    'POSE_STAMPED',
+    'TF_MESSAGE',
+    'SUPPORTED_TYPES',
+    'BagError',
+    'BagWriteError',
+    'Sample',
+    'normalise_type',
+    'ns_to_stamp',
+    'stamp_to_ns',
+    'odometry_message',
+    'samples_of',
+    'Bag',
+    'open_bag',
+    'BagWriter',
+    'write_odometry_bag',
+    'quaternion_to_heading',
+    'rotate_by_quaternion',
+]

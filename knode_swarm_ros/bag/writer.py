@@ -3,7 +3,7 @@ definitions.
 
 The bag of a swarm run holds what a ``ros2 bag record`` of it would hold: one topic per robot,
 ``/robot_<id>/odom``, nav_msgs/msg/Odometry (:func:`~.messages.odometry_message`), offered with
-the odometry QoS of the nodes (:mod:`knode_swarm_ros.nodes.qos_specs`, in rosbag2's format:
+the odometry QoS of the nodes (:mod:`knode_swarm_ros.logic.contract.qos_specs`, in rosbag2's format:
 :mod:`.qos`).
 
 Output layout: a path ending in ``.mcap`` is one MCAP file (its channels carry the QoS);
@@ -17,6 +17,7 @@ distribution (no .msg files to find), and its channels carry ``offered_qos_profi
 mcap-ros2-support's writer cannot set. It writes one storage file per bag, so a split bag is
 written as one rosbags bag per file and the directory's ``metadata.yaml`` is written here.
 """
+
 from __future__ import annotations
 
 import os
@@ -28,13 +29,14 @@ from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
-from ..nodes import qos_specs
-from ..nodes.common import WORLD_FRAME
-from ..nodes.qos_specs import QosSpec
+from knode_swarm_ros.logic.common import WORLD_FRAME
+from knode_swarm_ros.logic.contract import qos_specs
+from knode_swarm_ros.logic.contract.qos_specs import QosSpec
+
 from .messages import ODOMETRY, BagWriteError, normalise_type, odometry_message, to_message, typestore
 from .qos import qos_v9, rosbags_qos
 
-__all__ = ["BagWriter", "write_odometry_bag"]
+__all__ = ['BagWriter', 'write_odometry_bag']
 
 PathLike = Union[str, os.PathLike]
 
@@ -68,29 +70,35 @@ class BagWriter:
 
     ``write(topic, type_name, message, stamp_ns, log_time_ns=None, qos=None)``: ``log_time_ns``
     (the receive time in a real recording) defaults to ``stamp_ns``; ``qos`` (a
-    :class:`~knode_swarm_ros.nodes.qos_specs.QosSpec`, first write of a topic) is the topic's
+    :class:`~knode_swarm_ros.logic.contract.qos_specs.QosSpec`, first write of a topic) is the topic's
     offered QoS.
     """
 
-    def __init__(self, path: PathLike, split_messages: Optional[int] = None, overwrite: bool = False,
-                 compression: str = "zstd"):
+    def __init__(
+        self,
+        path: PathLike,
+        split_messages: Optional[int] = None,
+        overwrite: bool = False,
+        compression: str = 'zstd',
+    ):
         try:
             import rosbags  # noqa: F401
         except ImportError as exc:  # pragma: no cover - exercised only without the bag extra
-            raise BagWriteError(f"writing bags needs the rosbags package ({exc}); "
-                                "pip install 'knode_swarm_ros[bag]'") from None
-        if compression not in ("zstd", "none"):
-            raise BagWriteError(f"compression {compression!r}: choose zstd or none")
-        self._compress = compression == "zstd"
+            raise BagWriteError(
+                f"writing bags needs the rosbags package ({exc}); pip install 'knode_swarm_ros[bag]'"
+            ) from None
+        if compression not in ('zstd', 'none'):
+            raise BagWriteError(f'compression {compression!r}: choose zstd or none')
+        self._compress = compression == 'zstd'
         self.path = Path(path)
-        self.single_file = self.path.suffix == ".mcap"
+        self.single_file = self.path.suffix == '.mcap'
         if split_messages is not None and (self.single_file or int(split_messages) < 1):
-            raise BagWriteError("split_messages needs a bag directory path (not .mcap) and a positive count")
+            raise BagWriteError('split_messages needs a bag directory path (not .mcap) and a positive count')
         self.split_messages = None if split_messages is None else int(split_messages)
         if self.path.exists() and not overwrite:
-            raise BagWriteError(f"{self.path}: already exists (a bag is never overwritten unless asked)")
+            raise BagWriteError(f'{self.path}: already exists (a bag is never overwritten unless asked)')
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent))
+        self._tmp = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.', suffix='.tmp', dir=self.path.parent))
         self._topics: Dict[str, _Topic] = {}
         self._parts: List[_Part] = []
         self._closed = False
@@ -99,8 +107,9 @@ class BagWriter:
 
     def _open_next(self) -> None:
         from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
         self._finish_current()
-        name = self.path.stem if self.single_file else f"{self.path.name}_{len(self._parts)}"
+        name = self.path.stem if self.single_file else f'{self.path.name}_{len(self._parts)}'
         writer = Writer(self._tmp / name, version=9, storage_plugin=StoragePlugin.MCAP)
         if self._compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
@@ -113,34 +122,44 @@ class BagWriter:
             part.writer.close()
             part.writer = None
             # rosbags writes <name>/<name>.mcap (+ its metadata.yaml): keep the storage file only
-            os.replace(self._tmp / part.name / f"{part.name}.mcap", self._tmp / f"{part.name}.mcap")
+            os.replace(self._tmp / part.name / f'{part.name}.mcap', self._tmp / f'{part.name}.mcap')
             shutil.rmtree(self._tmp / part.name)
 
-    def write(self, topic: str, type_name: str, message: Any, stamp_ns: int,
-              log_time_ns: Optional[int] = None, qos: Optional[QosSpec] = None) -> None:
+    def write(
+        self,
+        topic: str,
+        type_name: str,
+        message: Any,
+        stamp_ns: int,
+        log_time_ns: Optional[int] = None,
+        qos: Optional[QosSpec] = None,
+    ) -> None:
         """Append one message (its ``header.stamp`` is the caller's; ``log_time_ns`` orders the bag)."""
         if self._closed:
-            raise BagWriteError("write after close")
+            raise BagWriteError('write after close')
         type_name = normalise_type(type_name)
         known = self._topics.get(topic)
         if known is not None and known.type_name != type_name:
-            raise BagWriteError(f"topic {topic} already carries {known.type_name}, not {type_name}")
+            raise BagWriteError(f'topic {topic} already carries {known.type_name}, not {type_name}')
         log_ns = int(stamp_ns if log_time_ns is None else log_time_ns)
         if log_ns < 0:
-            raise BagWriteError(f"topic {topic}: negative log time {log_ns} ns (bag times are unsigned)")
+            raise BagWriteError(f'topic {topic}: negative log time {log_ns} ns (bag times are unsigned)')
         store = typestore()
         if type_name not in store.types:
             raise BagWriteError(f"no message definition for {type_name} in ROS 2 Jazzy's message types")
         data = store.serialize_cdr(to_message(type_name, message, store), type_name)
         if known is None:
             known = self._topics[topic] = _Topic(type_name, qos)
-        if not self._parts or (self.split_messages is not None and self._parts[-1].count >= self.split_messages):
+        if not self._parts or (
+            self.split_messages is not None and self._parts[-1].count >= self.split_messages
+        ):
             self._open_next()
         part = self._parts[-1]
         connection = part.connections.get(topic)
         if connection is None:
             connection = part.connections[topic] = part.writer.add_connection(
-                topic, type_name, typestore=store, offered_qos_profiles=rosbags_qos(known.qos))
+                topic, type_name, typestore=store, offered_qos_profiles=rosbags_qos(known.qos)
+            )
         part.writer.write(connection, log_ns, data)
         part.count += 1
         part.first_ns = log_ns if part.first_ns is None else min(part.first_ns, log_ns)
@@ -153,28 +172,43 @@ class BagWriter:
         firsts = [p.first_ns for p in self._parts if p.first_ns is not None]
         lasts = [p.last_ns for p in self._parts if p.last_ns is not None]
         start = min(firsts) if firsts else 0
-        files = [f"{p.name}.mcap" for p in self._parts]
-        return {"rosbag2_bagfile_information": {
-            "version": 9,
-            "storage_identifier": "mcap",
-            "duration": {"nanoseconds": (max(lasts) - start) if lasts else 0},
-            "starting_time": {"nanoseconds_since_epoch": start},
-            "message_count": sum(p.count for p in self._parts),
-            "topics_with_message_count": [
-                {"topic_metadata": {"name": topic, "type": t.type_name, "serialization_format": "cdr",
-                                    "offered_qos_profiles": qos_v9(t.qos),
-                                    "type_description_hash": store.hash_rihs01(t.type_name)},
-                 "message_count": t.count}
-                for topic, t in self._topics.items()],
-            "compression_format": "",
-            "compression_mode": "",
-            "relative_file_paths": files,
-            "files": [{"path": f, "starting_time": {"nanoseconds_since_epoch": p.first_ns or 0},
-                       "duration": {"nanoseconds": (p.last_ns or 0) - (p.first_ns or 0)},
-                       "message_count": p.count} for f, p in zip(files, self._parts)],
-            "custom_data": {},
-            "ros_distro": "jazzy",
-        }}
+        files = [f'{p.name}.mcap' for p in self._parts]
+        return {
+            'rosbag2_bagfile_information': {
+                'version': 9,
+                'storage_identifier': 'mcap',
+                'duration': {'nanoseconds': (max(lasts) - start) if lasts else 0},
+                'starting_time': {'nanoseconds_since_epoch': start},
+                'message_count': sum(p.count for p in self._parts),
+                'topics_with_message_count': [
+                    {
+                        'topic_metadata': {
+                            'name': topic,
+                            'type': t.type_name,
+                            'serialization_format': 'cdr',
+                            'offered_qos_profiles': qos_v9(t.qos),
+                            'type_description_hash': store.hash_rihs01(t.type_name),
+                        },
+                        'message_count': t.count,
+                    }
+                    for topic, t in self._topics.items()
+                ],
+                'compression_format': '',
+                'compression_mode': '',
+                'relative_file_paths': files,
+                'files': [
+                    {
+                        'path': f,
+                        'starting_time': {'nanoseconds_since_epoch': p.first_ns or 0},
+                        'duration': {'nanoseconds': (p.last_ns or 0) - (p.first_ns or 0)},
+                        'message_count': p.count,
+                    }
+                    for f, p in zip(files, self._parts)
+                ],
+                'custom_data': {},
+                'ros_distro': 'jazzy',
+            }
+        }
 
     def close(self) -> Dict[str, Any]:
         """Finish the file(s), write ``metadata.yaml`` (directories) and move the bag into place.
@@ -183,7 +217,7 @@ class BagWriter:
         ({topic: count}).
         """
         if self._closed:
-            raise BagWriteError("close called twice")
+            raise BagWriteError('close called twice')
         try:
             if not self._parts:
                 self._open_next()  # an empty bag is still a valid bag
@@ -192,7 +226,8 @@ class BagWriter:
                 os.replace(self._tmp / self.path.name, self.path)
             else:
                 import yaml
-                with open(self._tmp / "metadata.yaml", "w", encoding="utf-8") as fh:
+
+                with open(self._tmp / 'metadata.yaml', 'w', encoding='utf-8') as fh:
                     yaml.safe_dump(self._metadata(), fh, sort_keys=False)
                 if self.path.exists():
                     shutil.rmtree(self.path) if self.path.is_dir() else self.path.unlink()
@@ -201,9 +236,12 @@ class BagWriter:
             self._closed = True
             if self._tmp.exists():
                 shutil.rmtree(self._tmp, ignore_errors=True)
-        self.summary = {"path": str(self.path), "files": [f"{p.name}.mcap" for p in self._parts],
-                        "messages": sum(p.count for p in self._parts),
-                        "topics": {t: i.count for t, i in self._topics.items()}}
+        self.summary = {
+            'path': str(self.path),
+            'files': [f'{p.name}.mcap' for p in self._parts],
+            'messages': sum(p.count for p in self._parts),
+            'topics': {t: i.count for t, i in self._topics.items()},
+        }
         return self.summary
 
     def abort(self) -> None:
@@ -215,7 +253,7 @@ class BagWriter:
                     part.writer.abort()
             shutil.rmtree(self._tmp, ignore_errors=True)
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> 'BagWriter':
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -234,24 +272,34 @@ def _stamps_ns(stamps: Optional[np.ndarray], T: int, n: int, dt: float) -> np.nd
         return np.repeat(s[:, None], n, axis=1)
     s = np.asarray(stamps)
     if s.shape not in ((T,), (T, n)):
-        raise BagWriteError(f"stamps must have shape [T] = [{T}] or [T, n] = [{T}, {n}], got {list(s.shape)}")
+        raise BagWriteError(f'stamps must have shape [T] = [{T}] or [T, n] = [{T}, {n}], got {list(s.shape)}')
     if np.issubdtype(s.dtype, np.integer):
         ns = s.astype(np.int64)
     else:
         if not np.all(np.isfinite(s)):
-            raise BagWriteError("stamps hold a non-finite value")
+            raise BagWriteError('stamps hold a non-finite value')
         ns = np.rint(s.astype(np.float64) * 1e9).astype(np.int64)
     if ns.ndim == 1:
         ns = np.repeat(ns[:, None], n, axis=1)
     return ns
 
 
-def write_odometry_bag(path: PathLike, states: np.ndarray, dt: float, scenario: str,
-                       stamps: Optional[np.ndarray] = None, topic_fmt: str = "/robot_{id}/odom",
-                       ids: Optional[Sequence[int]] = None, mask: Optional[np.ndarray] = None,
-                       velocities: Optional[np.ndarray] = None, frame_id: str = WORLD_FRAME,
-                       child_frame_fmt: str = "robot_{id}/base_link", split_messages: Optional[int] = None,
-                       overwrite: bool = False, qos: Optional[QosSpec] = qos_specs.ODOM) -> Dict[str, Any]:
+def write_odometry_bag(
+    path: PathLike,
+    states: np.ndarray,
+    dt: float,
+    scenario: str,
+    stamps: Optional[np.ndarray] = None,
+    topic_fmt: str = '/robot_{id}/odom',
+    ids: Optional[Sequence[int]] = None,
+    mask: Optional[np.ndarray] = None,
+    velocities: Optional[np.ndarray] = None,
+    frame_id: str = WORLD_FRAME,
+    child_frame_fmt: str = 'robot_{id}/base_link',
+    split_messages: Optional[int] = None,
+    overwrite: bool = False,
+    qos: Optional[QosSpec] = qos_specs.ODOM,
+) -> Dict[str, Any]:
     """Write one swarm run ``states[T, n, d]`` as nav_msgs/Odometry messages, one topic per robot.
 
     Args:
@@ -276,33 +324,42 @@ def write_odometry_bag(path: PathLike, states: np.ndarray, dt: float, scenario: 
     :meth:`BagWriter.close`. Raises :class:`BagWriteError` on bad input (nothing is written).
     """
     states = np.asarray(states, dtype=np.float64)
-    if scenario not in ("flock2d", "boids3d"):
-        raise BagWriteError(f"unknown scenario {scenario!r}; known: boids3d, flock2d")
-    d = 4 if scenario == "flock2d" else 6
+    if scenario not in ('flock2d', 'boids3d'):
+        raise BagWriteError(f'unknown scenario {scenario!r}; known: boids3d, flock2d')
+    d = 4 if scenario == 'flock2d' else 6
     if states.ndim != 3 or states.shape[2] != d or states.shape[0] < 1 or states.shape[1] < 1:
-        raise BagWriteError(f"states must be [T, n, {d}] for {scenario}, got {list(states.shape)}")
+        raise BagWriteError(f'states must be [T, n, {d}] for {scenario}, got {list(states.shape)}')
     T, n, _ = states.shape
     ids = list(range(n)) if ids is None else [int(i) for i in ids]
     if len(ids) != n or len(set(ids)) != n:
-        raise BagWriteError(f"ids must be {n} distinct integers, got {ids}")
+        raise BagWriteError(f'ids must be {n} distinct integers, got {ids}')
     mask = np.ones((T, n), dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     if mask.shape != (T, n):
-        raise BagWriteError(f"mask must have shape [T, n] = [{T}, {n}], got {list(mask.shape)}")
+        raise BagWriteError(f'mask must have shape [T, n] = [{T}, {n}], got {list(mask.shape)}')
     if not np.all(np.isfinite(states[mask])):
         t, i = (int(v) for v in np.argwhere(mask & ~np.all(np.isfinite(states), axis=2))[0])
-        raise BagWriteError(f"states[{t}, {i}] (robot {ids[i]}) is not finite and not masked out")
+        raise BagWriteError(f'states[{t}, {i}] (robot {ids[i]}) is not finite and not masked out')
     if velocities is not None:
         velocities = np.asarray(velocities, dtype=np.float64)
-        if scenario != "boids3d" or velocities.shape != (T, n, 3):
-            raise BagWriteError(f"velocities are for boids3d, shape [T, n, 3] = [{T}, {n}, 3]; got "
-                                f"{list(velocities.shape)} for {scenario}")
+        if scenario != 'boids3d' or velocities.shape != (T, n, 3):
+            raise BagWriteError(
+                f'velocities are for boids3d, shape [T, n, 3] = [{T}, {n}, 3]; got '
+                f'{list(velocities.shape)} for {scenario}'
+            )
     ns = _stamps_ns(stamps, T, n, dt)
     if np.any(ns[mask] < 0):
-        raise BagWriteError("stamps must be >= 0")
+        raise BagWriteError('stamps must be >= 0')
     order = sorted(((int(ns[t, i]), i, t) for t in range(T) for i in range(n) if mask[t, i]))
     with BagWriter(path, split_messages=split_messages, overwrite=overwrite) as writer:
         for stamp, i, t in order:
-            msg = odometry_message(scenario, states[t, i], stamp, ids[i], frame_id, child_frame_fmt.format(id=ids[i]),
-                                   None if velocities is None else velocities[t, i])
+            msg = odometry_message(
+                scenario,
+                states[t, i],
+                stamp,
+                ids[i],
+                frame_id,
+                child_frame_fmt.format(id=ids[i]),
+                None if velocities is None else velocities[t, i],
+            )
             writer.write(topic_fmt.format(id=ids[i]), ODOMETRY, msg, stamp, qos=qos)
     return writer.summary

@@ -17,6 +17,7 @@ Public API (shapes: S swarms, T steps, n robots, d state entries, k rows, m comm
 * metrics: :func:`avd`, :func:`amd`, :func:`pod_energy`, :func:`pod_kld`.
 * trajectory files: :func:`load_trajectories`, :func:`save_trajectories`, :class:`TrajectoryError`.
 """
+
 import importlib
 from typing import Any
 
@@ -29,29 +30,59 @@ from .policy_meta import PolicyError, shipped_policy_path
 from .policy_runtime import RUNTIMES, OnnxPolicy, load_runtime, onnx_twin_path
 from .rollout import rollout, zoh_step
 from .scenarios import SCENARIOS, Scenario, get_scenario
-from .trajectory import (TrajectoryError, TrajectoryFile, load_trajectories, parse_trajectory_ref,
-                         save_trajectories)
+from .trajectory import (
+    TrajectoryError,
+    TrajectoryFile,
+    load_trajectories,
+    parse_trajectory_ref,
+    save_trajectories,
+)
 
 # The torch-based parts resolve lazily (PEP 562), so that numpy-only users (dataset
 # generation, the simulator, the recorder) do not pay for importing torch.
 _LAZY = {
-    "knowledge": ["AvoidanceGain", "collision_avoidance", "wall_avoidance"],
-    "policy": ["DEFAULTS", "KNODEPolicy", "PolicyConfig"],
-    "policy_io": ["LoadedPolicy", "export_policy", "load_policy"],
+    'knowledge': ['AvoidanceGain', 'collision_avoidance', 'wall_avoidance'],
+    'policy': ['DEFAULTS', 'KNODEPolicy', 'PolicyConfig'],
+    'policy_io': ['LoadedPolicy', 'export_policy', 'load_policy'],
 }
 _MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
-__all__ = sorted(list(_MODULE_OF) + [
-    "DelayBuffer", "amd", "avd", "pod_energy", "pod_kld", "neighbour_matrices", "neighbour_matrix",
-    "neighbour_matrix_single", "neighbour_matrix_rows", "rollout", "zoh_step", "SCENARIOS", "Scenario", "get_scenario",
-    "TrajectoryError", "TrajectoryFile", "load_trajectories", "parse_trajectory_ref", "save_trajectories",
-    "PolicyError", "shipped_policy_path", "RUNTIMES", "OnnxPolicy", "load_runtime", "onnx_twin_path"])
+__all__ = sorted(
+    list(_MODULE_OF)
+    + [
+        'DelayBuffer',
+        'amd',
+        'avd',
+        'pod_energy',
+        'pod_kld',
+        'neighbour_matrices',
+        'neighbour_matrix',
+        'neighbour_matrix_single',
+        'neighbour_matrix_rows',
+        'rollout',
+        'zoh_step',
+        'SCENARIOS',
+        'Scenario',
+        'get_scenario',
+        'TrajectoryError',
+        'TrajectoryFile',
+        'load_trajectories',
+        'parse_trajectory_ref',
+        'save_trajectories',
+        'PolicyError',
+        'shipped_policy_path',
+        'RUNTIMES',
+        'OnnxPolicy',
+        'load_runtime',
+        'onnx_twin_path',
+    ]
+)
 
 
 def __getattr__(name: str) -> Any:
     module = _MODULE_OF.get(name)
     if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(importlib.import_module(f'.{module}', __name__), name)
     globals()[name] = value
     return value
 

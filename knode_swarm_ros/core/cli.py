@@ -12,23 +12,24 @@ standard library's and numpy's words for an unusable value or file: a missing or
 input, an unparsable number), 130 for Ctrl-C. Anything else is a bug and keeps its traceback.
 :func:`parse_set` is the shared ``--set SECTION.KEY=VALUE`` parser.
 """
+
 import functools
 import sys
 from typing import Any, Callable, Dict, Iterable, Optional
 
 from .errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, ConfigError, KnodeError
 
-__all__ = ["cli", "report", "parse_set"]
+__all__ = ['cli', 'report', 'parse_set']
 
 
 def report(prog: str, exc: BaseException) -> int:
     """Print ``prog: error: <exc>`` on stderr; return the exit status ``exc`` stands for."""
     if isinstance(exc, KeyboardInterrupt):
-        print(f"{prog}: interrupted", file=sys.stderr)
+        print(f'{prog}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
     if isinstance(exc, OSError) and not str(exc):
         exc = OSError(type(exc).__name__)
-    print(f"{prog}: error: {exc}", file=sys.stderr)
+    print(f'{prog}: error: {exc}', file=sys.stderr)
     return exc.exit_status if isinstance(exc, KnodeError) else EXIT_BAD_INPUT
 
 
@@ -37,6 +38,7 @@ def cli(prog: str) -> Callable[[Callable[..., Optional[int]]], Callable[..., int
 
     ``SystemExit`` (argparse, ``parser.error``) passes through unchanged.
     """
+
     def wrap(main: Callable[..., Optional[int]]) -> Callable[..., int]:
         @functools.wraps(main)
         def run(*args: Any, **kwargs: Any) -> int:
@@ -45,8 +47,10 @@ def cli(prog: str) -> Callable[[Callable[..., Optional[int]]], Callable[..., int
             except (KnodeError, ValueError, OSError, KeyboardInterrupt) as exc:
                 return report(prog, exc)
             return 0 if status is None else int(status)
+
         run.prog = prog
         return run
+
     return wrap
 
 
@@ -58,13 +62,14 @@ def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
         ConfigError: an item without ``=``, or a value that is not valid YAML.
     """
     import yaml
+
     out: Dict[str, Any] = {}
     for item in items or []:
-        key, sep, value = item.partition("=")
+        key, sep, value = item.partition('=')
         if not sep or not key.strip():
-            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+            raise ConfigError(f'--set {item!r}: expected SECTION.KEY=VALUE')
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {item!r}: the value is not valid YAML ({exc})") from None
+            raise ConfigError(f'--set {item!r}: the value is not valid YAML ({exc})') from None
     return out

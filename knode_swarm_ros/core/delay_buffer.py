@@ -5,6 +5,7 @@ state under its step index ``round(stamp / dt)`` and answers "the state of robot
 step s" with the newest state at or before s (a gap is bridged by the last state heard;
 before the first state heard, the earliest one is used, as docs/DESIGN.md fixes for t < tau).
 """
+
 from __future__ import annotations
 
 import bisect
@@ -12,7 +13,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["DelayBuffer"]
+__all__ = ['DelayBuffer']
 
 
 class DelayBuffer:
@@ -26,9 +27,9 @@ class DelayBuffer:
 
     def __init__(self, dt: float, tau: int = 0, horizon: int = 64):
         if dt <= 0:
-            raise ValueError(f"dt must be > 0, got {dt}")
+            raise ValueError(f'dt must be > 0, got {dt}')
         if tau < 0:
-            raise ValueError(f"tau must be >= 0, got {tau}")
+            raise ValueError(f'tau must be >= 0, got {tau}')
         self.dt = float(dt)
         self.tau = int(tau)
         self.horizon = max(int(horizon), self.tau + 1)

@@ -12,13 +12,20 @@ prints ``prog: error: <message>`` and exits with it):
   status a command documents (``training.train``'s divergence: 3).
 """
 
-__all__ = ["EXIT_OK", "EXIT_RUN_FAILED", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "KnodeError", "RunError",
-           "ConfigError"]
+__all__ = [
+    'EXIT_OK',
+    'EXIT_RUN_FAILED',
+    'EXIT_BAD_INPUT',
+    'EXIT_INTERRUPTED',
+    'KnodeError',
+    'RunError',
+    'ConfigError',
+]
 
 EXIT_OK = 0
-EXIT_RUN_FAILED = 1      # the input was fine, the run failed
-EXIT_BAD_INPUT = 2       # refused: a bad argument, parameter, field or file (argparse's status too)
-EXIT_INTERRUPTED = 130   # stopped by Ctrl-C / SIGTERM
+EXIT_RUN_FAILED = 1  # the input was fine, the run failed
+EXIT_BAD_INPUT = 2  # refused: a bad argument, parameter, field or file (argparse's status too)
+EXIT_INTERRUPTED = 130  # stopped by Ctrl-C / SIGTERM
 
 
 class KnodeError(Exception):
@@ -37,5 +44,5 @@ class RunError(KnodeError):
 class ConfigError(KnodeError, ValueError):
     """A config field, parameter, argument or input file that prevents a command or node from
     starting; the message names it and the offending value. (The nodes and the training config
-    share this one class: ``knode_swarm_ros.nodes.common.ConfigError`` and
+    share this one class: ``knode_swarm_ros.logic.common.ConfigError`` and
     ``training.common.ConfigError`` are it.)"""

@@ -2,11 +2,12 @@
 
 Shapes: n robots, p position entries, q query points; leading ``...`` dimensions broadcast.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["distances", "pair_distances", "min_pair_distance"]
+__all__ = ['distances', 'pair_distances', 'min_pair_distance']
 
 
 def distances(query: np.ndarray, others: np.ndarray) -> np.ndarray:

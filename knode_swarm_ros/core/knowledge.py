@@ -14,6 +14,7 @@ in 2D and a = 0 in 3D), which keeps every gain non-negative whatever phi learns.
 
 All functions are TorchScript-compatible and work on a batch of neighbour matrices.
 """
+
 from __future__ import annotations
 
 from typing import Optional
@@ -21,9 +22,18 @@ from typing import Optional
 import torch
 from torch import Tensor, nn
 
-__all__ = ["AvoidanceGain", "collision_avoidance", "wall_avoidance", "collision_potential",
-           "wall_potential", "continuous_collision_avoidance", "continuous_wall_avoidance",
-           "continuous_collision_potential", "continuous_wall_potential", "MIN_DISTANCE"]
+__all__ = [
+    'AvoidanceGain',
+    'collision_avoidance',
+    'wall_avoidance',
+    'collision_potential',
+    'wall_potential',
+    'continuous_collision_avoidance',
+    'continuous_wall_avoidance',
+    'continuous_collision_potential',
+    'continuous_wall_potential',
+    'MIN_DISTANCE',
+]
 
 # Distances are floored at ``min_distance`` (default MIN_DISTANCE) so that two robots on top
 # of each other get a huge but finite push (the policy's saturation bounds it), not inf/NaN:
@@ -42,8 +52,8 @@ class AvoidanceGain(nn.Module):
     def __init__(self, a: float = 0.0, phi: float = 1.0, trainable: bool = True):
         super().__init__()
         if a < 0:
-            raise ValueError(f"gain offset a must be >= 0, got {a}")
-        self.register_buffer("a", torch.tensor(float(a)))
+            raise ValueError(f'gain offset a must be >= 0, got {a}')
+        self.register_buffer('a', torch.tensor(float(a)))
         self.phi = nn.Parameter(torch.tensor(float(phi)), requires_grad=trainable)
 
     def forward(self) -> Tensor:
@@ -53,11 +63,11 @@ class AvoidanceGain(nn.Module):
 def _closest_active(Y: Tensor, mask: Tensor, position_dim: int):
     """Offset r = p_0 - p_j ``[B, p]`` and distance ``[B]`` to the closest active neighbour row."""
     own = Y[:, 0, :position_dim]
-    offsets = own.unsqueeze(1) - Y[:, 1:, :position_dim]            # [B, k-1, p]
-    dist = torch.linalg.vector_norm(offsets, dim=-1)                # [B, k-1]
+    offsets = own.unsqueeze(1) - Y[:, 1:, :position_dim]  # [B, k-1, p]
+    dist = torch.linalg.vector_norm(offsets, dim=-1)  # [B, k-1]
     inactive = mask[:, 1:] <= 0
-    dist = dist.masked_fill(inactive, float("inf"))
-    best, j = torch.min(dist, dim=-1)                               # first row wins ties
+    dist = dist.masked_fill(inactive, float('inf'))
+    best, j = torch.min(dist, dim=-1)  # first row wins ties
     r = torch.gather(offsets, 1, j.view(-1, 1, 1).expand(-1, 1, offsets.shape[-1])).squeeze(1)
     return r, best
 
@@ -65,26 +75,29 @@ def _closest_active(Y: Tensor, mask: Tensor, position_dim: int):
 def _unit(r: Tensor, dist: Tensor) -> Tensor:
     """``r / dist`` (``dist`` broadcast over the last axis), or +x, the first position axis, where
     dist = 0 (module comment). The safe divisor keeps autograd free of 0/0 in the branch not taken."""
-    axis = (torch.arange(r.shape[-1], device=r.device) == 0).to(r.dtype)   # [p], broadcast (ONNX-exportable)
+    axis = (torch.arange(r.shape[-1], device=r.device) == 0).to(r.dtype)  # [p], broadcast (ONNX-exportable)
     apart = dist > 0
     return torch.where(apart, r / torch.where(apart, dist, torch.ones_like(dist)), axis)
 
 
-def _wall_pushes(position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float,
-                 continuous: bool) -> Tensor:
+def _wall_pushes(
+    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float, continuous: bool
+) -> Tensor:
     """Both wall terms ``[B, p]``: per face within d0, lambda / d^3 (paper) or
     lambda (1/d - 1/d0) / d^2 (continuous) along the inward normal, distances floored."""
-    up = (box - position).clamp(min=min_distance)      # distance to the +box faces
-    down = (position + box).clamp(min=min_distance)    # distance to the -box faces
+    up = (box - position).clamp(min=min_distance)  # distance to the +box faces
+    down = (position + box).clamp(min=min_distance)  # distance to the -box faces
     zero = torch.zeros_like(position)
     if continuous:
-        return (torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up ** 2, zero)
-                + torch.where(down < d0, gain * (1.0 / down - 1.0 / d0) / down ** 2, zero))
-    return torch.where(up <= d0, -gain / up ** 3, zero) + torch.where(down <= d0, gain / down ** 3, zero)
+        return torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up**2, zero) + torch.where(
+            down < d0, gain * (1.0 / down - 1.0 / d0) / down**2, zero
+        )
+    return torch.where(up <= d0, -gain / up**3, zero) + torch.where(down <= d0, gain / down**3, zero)
 
 
-def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
-                        min_distance: float = 1e-3) -> Tensor:
+def collision_avoidance(
+    Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float, min_distance: float = 1e-3
+) -> Tensor:
     """Repulsion from the closest active neighbour only.
 
     Args:
@@ -102,15 +115,17 @@ def collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor
     r, dist = _closest_active(Y, mask, position_dim)
     near = (dist <= d0).unsqueeze(-1)
     d = dist.clamp(min=min_distance).masked_fill(~near.squeeze(-1), 1.0).unsqueeze(-1)
-    force = gain * r / d ** 4
+    force = gain * r / d**4
     # inside the floor: the floored magnitude along r / |r| (or +x)
     unit = _unit(r, dist.unsqueeze(-1))
     inside = (dist < min_distance).unsqueeze(-1)
-    force = torch.where(inside, gain * unit / (min_distance ** 3), force)
+    force = torch.where(inside, gain * unit / (min_distance**3), force)
     return torch.where(near, force, torch.zeros_like(r))
 
 
-def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3) -> Tensor:
+def wall_avoidance(
+    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3
+) -> Tensor:
     """Repulsion from the closest point of each face of the cube [-box, box]^p.
 
     Args:
@@ -123,8 +138,9 @@ def wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float, min_di
     return _wall_pushes(position, box, gain, d0, min_distance, False)
 
 
-def continuous_collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float,
-                                   min_distance: float = 1e-3) -> Tensor:
+def continuous_collision_avoidance(
+    Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float, min_distance: float = 1e-3
+) -> Tensor:
     """Sum over every active neighbour within d0 of lambda (1/d - 1/d0) / d^2 along r / d.
 
     Args and floor as :func:`collision_avoidance` (closer than ``min_distance`` the magnitude
@@ -132,42 +148,47 @@ def continuous_collision_avoidance(Y: Tensor, mask: Tensor, position_dim: int, g
     """
     if Y.shape[1] < 2:
         return torch.zeros(Y.shape[0], position_dim, dtype=Y.dtype, device=Y.device)
-    offsets = Y[:, :1, :position_dim] - Y[:, 1:, :position_dim]                 # r = p_0 - p_j [B, k-1, p]
-    dist = torch.linalg.vector_norm(offsets, dim=-1, keepdim=True)               # [B, k-1, 1]
+    offsets = Y[:, :1, :position_dim] - Y[:, 1:, :position_dim]  # r = p_0 - p_j [B, k-1, p]
+    dist = torch.linalg.vector_norm(offsets, dim=-1, keepdim=True)  # [B, k-1, 1]
     near = (dist < d0) & (mask[:, 1:] > 0).unsqueeze(-1)
     d = dist.clamp(min=min_distance)
     unit = _unit(offsets, dist)
-    magnitude = gain * (1.0 / d - 1.0 / d0) / d ** 2
+    magnitude = gain * (1.0 / d - 1.0 / d0) / d**2
     return torch.where(near, magnitude * unit, torch.zeros_like(offsets)).sum(dim=1)
 
 
-def continuous_wall_avoidance(position: Tensor, box: float, gain: Tensor, d0: float,
-                              min_distance: float = 1e-3) -> Tensor:
+def continuous_wall_avoidance(
+    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3
+) -> Tensor:
     """Per face within d0, lambda (1/d - 1/d0) / d^2 along the inward normal ``[B, p]``
     (floored distance outside the box, as :func:`wall_avoidance`)."""
     return _wall_pushes(position, box, gain, d0, min_distance, True)
 
 
-def _pair_potential(dist: Tensor, gain: Tensor, d0: float, continuous: bool,
-                    near: Optional[Tensor] = None) -> Tensor:
+def _pair_potential(
+    dist: Tensor, gain: Tensor, d0: float, continuous: bool, near: Optional[Tensor] = None
+) -> Tensor:
     """U per distance (same shape): (lambda / 2) / d^2 for d <= d0 (paper) or
     (lambda / 2) (1/d - 1/d0)^2 for d < d0 (continuous), 0 beyond and where ``near`` is False."""
     within = dist < d0 if continuous else dist <= d0
     near = within if near is None else within & near
     d = dist.masked_fill(~near, 1.0)
-    u = 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2 if continuous else 0.5 * gain / d ** 2
+    u = 0.5 * gain * (1.0 / d - 1.0 / d0) ** 2 if continuous else 0.5 * gain / d**2
     return torch.where(near, u, torch.zeros_like(d))
 
 
 def _wall_potential(position: Tensor, box: float, gain: Tensor, d0: float, continuous: bool) -> Tensor:
     """U ``[B]`` of both wall terms, summed over the faces."""
-    return (_pair_potential(box - position, gain, d0, continuous).sum(-1)
-            + _pair_potential(position + box, gain, d0, continuous).sum(-1))
+    return _pair_potential(box - position, gain, d0, continuous).sum(-1) + _pair_potential(
+        position + box, gain, d0, continuous
+    ).sum(-1)
 
 
-def continuous_collision_potential(Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float) -> Tensor:
+def continuous_collision_potential(
+    Y: Tensor, mask: Tensor, position_dim: int, gain: Tensor, d0: float
+) -> Tensor:
     """U ``[B]`` of :func:`continuous_collision_avoidance`."""
-    dist = torch.linalg.vector_norm(Y[:, :1, :position_dim] - Y[:, 1:, :position_dim], dim=-1)   # [B, k-1]
+    dist = torch.linalg.vector_norm(Y[:, :1, :position_dim] - Y[:, 1:, :position_dim], dim=-1)  # [B, k-1]
     return _pair_potential(dist, gain, d0, True, near=mask[:, 1:] > 0).sum(-1)
 
 

@@ -22,12 +22,13 @@ Two users share these semantics:
   whose newest usable state is more than ``timeout_steps`` older than t - tau is not a
   neighbour (the agent's ``state_timeout``), and neither is one never heard.
 """
+
 from __future__ import annotations
 
 import heapq
 import math
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Tuple
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class LinkModel:
         self.config = config
         self.rng = np.random.default_rng(int(config.seed))
         self.counters: Dict[str, int] = {name: 0 for name in LINK_COUNTERS}
-        self.delays: List[float] = []          # every delivered message's delay (for statistics)
+        self.delays: List[float] = []  # every delivered message's delay (for statistics)
         self._queue: List[Tuple[float, int, Any]] = []
         self._seq = 0
 
@@ -134,9 +135,18 @@ def _gather_rows(view: np.ndarray, index: np.ndarray, valid: np.ndarray) -> np.n
     return np.where(valid[..., None], rows, 0.0)
 
 
-def link_rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: float, k: int,
-                 tau: int, dt: float, link: LinkConfig = LinkConfig(), timeout_steps: int = 50
-                 ) -> Tuple[np.ndarray, Dict[str, Any]]:
+def link_rollout(
+    policy: PolicyFn,
+    z0: np.ndarray,
+    steps: int,
+    scenario: str,
+    d_cr: float,
+    k: int,
+    tau: int,
+    dt: float,
+    link: LinkConfig = LinkConfig(),
+    timeout_steps: int = 50,
+) -> Tuple[np.ndarray, Dict[str, Any]]:
     """:func:`knode_swarm_ros.core.rollout` with every neighbour state through a link.
 
     Args:
@@ -161,13 +171,13 @@ def link_rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_
     S, n, d = z0.shape
     p = spec.position_dim
     delay, jitter = int(link.delay), int(link.jitter)
-    W = delay + jitter + tau + 1                      # a message is usable at most W - 1 steps after it is sent
+    W = delay + jitter + tau + 1  # a message is usable at most W - 1 steps after it is sent
     rng = np.random.default_rng(int(link.seed))
     out = np.empty((S, steps + 1, n, d))
     out[:, 0] = z0
     never = np.iinfo(np.int64).max
     arrival = np.full((W, S, n, n), never, dtype=np.int64)  # ring buffer by send step: [s % W, S, recv, send]
-    held = np.full((S, n, n), -1, dtype=np.int64)           # newest usable send step, -1: none yet
+    held = np.full((S, n, n), -1, dtype=np.int64)  # newest usable send step, -1: none yet
     eye = np.eye(n, dtype=bool)
     counters = {name: 0 for name in LINK_COUNTERS}
     hist = np.zeros(delay + jitter + 1, dtype=np.int64)
@@ -188,7 +198,7 @@ def link_rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_
             ok &= ~lost
         lag = delay + (rng.integers(0, jitter + 1, size=(S, n, n)) if jitter else 0)
         counters['delivered'] += int(ok.sum())
-        hist += np.bincount(np.broadcast_to(lag, ok.shape)[ok], minlength=hist.size)[:hist.size]
+        hist += np.bincount(np.broadcast_to(lag, ok.shape)[ok], minlength=hist.size)[: hist.size]
         arrival[t % W] = np.where(ok, t + lag, never)
         if t == steps:
             break
@@ -200,8 +210,8 @@ def link_rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_
             usable = arrival[s % W] <= t
             held = np.where(usable & (s > held), s, held)
         alive = (held >= 0) & (newest - held <= timeout_steps)
-        view = out[s_idx, np.maximum(held, 0), j_idx]       # [S, recv, send, d]
-        own_delayed = out[:, newest]                          # a robot's own row needs no link
+        view = out[s_idx, np.maximum(held, 0), j_idx]  # [S, recv, send, d]
+        own_delayed = out[:, newest]  # a robot's own row needs no link
         view[:, eye] = own_delayed
         dist = np.sqrt(np.sum((view[..., :p] - own_delayed[:, :, None, :p]) ** 2, axis=-1))
         dist = np.where(alive & ~eye, dist, np.inf)

@@ -6,20 +6,21 @@
 * POD-KLD: the energy distribution of the first ``modes`` singular values of the
   trajectory's snapshot matrix (one column per time step), and KL(true || predicted).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from .geometry import pair_distances
 
-__all__ = ["avd", "amd", "pod_energy", "pod_kld", "kl_divergence"]
+__all__ = ['avd', 'amd', 'pod_energy', 'pod_kld', 'kl_divergence']
 
 
 def avd(velocities: np.ndarray) -> np.ndarray:
     """Average velocity difference of ``velocities [..., n, m]`` -> ``[...]`` (n >= 2)."""
     n = velocities.shape[-2]
     if n < 2:
-        raise ValueError("avd needs at least 2 robots")
+        raise ValueError('avd needs at least 2 robots')
     return pair_distances(velocities, exclude_self=False).sum(axis=(-1, -2)) / (n * (n - 1))
 
 
@@ -27,11 +28,13 @@ def amd(positions: np.ndarray) -> np.ndarray:
     """Average minimum distance of ``positions [..., n, p]`` -> ``[...]`` (n >= 2)."""
     n = positions.shape[-2]
     if n < 2:
-        raise ValueError("amd needs at least 2 robots")
+        raise ValueError('amd needs at least 2 robots')
     return pair_distances(positions).min(axis=-1).mean(axis=-1)
 
 
-def pod_energy(states: np.ndarray, modes: int = 10, center: bool = False, squared: bool = False) -> np.ndarray:
+def pod_energy(
+    states: np.ndarray, modes: int = 10, center: bool = False, squared: bool = False
+) -> np.ndarray:
     """Energy distribution of the first ``modes`` POD modes of one trajectory.
 
     Args:
@@ -50,18 +53,27 @@ def pod_energy(states: np.ndarray, modes: int = 10, center: bool = False, square
     e = np.concatenate([e, np.zeros(max(0, modes - e.size))])[:modes]
     total = e.sum()
     if total <= 0:
-        raise ValueError("POD energy is zero: the snapshot matrix is all zeros")
+        raise ValueError('POD energy is zero: the snapshot matrix is all zeros')
     return e / total
 
 
-def pod_kld(true_states: np.ndarray, predicted_states: np.ndarray, modes: int = 10, center: bool = False,
-            squared: bool = False, eps: float = 1e-12) -> float:
+def pod_kld(
+    true_states: np.ndarray,
+    predicted_states: np.ndarray,
+    modes: int = 10,
+    center: bool = False,
+    squared: bool = False,
+    eps: float = 1e-12,
+) -> float:
     """KL(true || predicted) between the POD energy distributions of two trajectories ``[T, n, d]``.
 
     ``eps`` keeps the divergence finite where the prediction has no energy in a mode.
     """
-    return kl_divergence(pod_energy(true_states, modes, center, squared),
-                         pod_energy(predicted_states, modes, center, squared), eps)
+    return kl_divergence(
+        pod_energy(true_states, modes, center, squared),
+        pod_energy(predicted_states, modes, center, squared),
+        eps,
+    )
 
 
 def kl_divergence(p: np.ndarray, q: np.ndarray, eps: float = 1e-12) -> float:

@@ -14,6 +14,7 @@ There is one implementation: :func:`neighbour_matrix` works on any leading batch
 (time steps, trajectories) and :func:`neighbour_matrix_single` feeds one robot through the
 same ranking code, so training, rollouts and the agent node agree bit for bit.
 """
+
 from __future__ import annotations
 
 from typing import Tuple
@@ -22,8 +23,15 @@ import numpy as np
 
 from .geometry import distances, pair_distances
 
-__all__ = ["neighbour_matrix", "neighbour_matrix_single", "neighbour_matrices", "neighbour_index",
-           "neighbour_matrix_torch", "neighbour_matrix_rows", "delayed_index"]
+__all__ = [
+    'neighbour_matrix',
+    'neighbour_matrix_single',
+    'neighbour_matrices',
+    'neighbour_index',
+    'neighbour_matrix_torch',
+    'neighbour_matrix_rows',
+    'delayed_index',
+]
 
 
 def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -34,7 +42,7 @@ def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray
     """
     dist = np.where(dist <= d_cr, dist, np.inf)
     # A stable sort keeps the lower id first among equal distances.
-    order = np.argsort(dist, axis=-1, kind="stable")[..., : k - 1]
+    order = np.argsort(dist, axis=-1, kind='stable')[..., : k - 1]
     ranked = np.take_along_axis(dist, order, axis=-1)
     valid = np.isfinite(ranked)
     if order.shape[-1] < k - 1:  # fewer robots than rows: pad
@@ -44,8 +52,9 @@ def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray
     return np.where(valid, order, 0), valid
 
 
-def _assemble(z_now: np.ndarray, z_delayed: np.ndarray, index: np.ndarray,
-              valid: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+def _assemble(
+    z_now: np.ndarray, z_delayed: np.ndarray, index: np.ndarray, valid: np.ndarray
+) -> Tuple[np.ndarray, np.ndarray]:
     """Stack own rows ``z_now [..., q, d]`` over gathered delayed rows ``z_delayed[..., index, :]``."""
     d = z_delayed.shape[-1]
     src = np.broadcast_to(z_delayed[..., None, :, :], index.shape[:-1] + z_delayed.shape[-2:])
@@ -56,8 +65,9 @@ def _assemble(z_now: np.ndarray, z_delayed: np.ndarray, index: np.ndarray,
     return Y, mask
 
 
-def neighbour_matrix(z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int,
-                     d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
+def neighbour_matrix(
+    z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int, d_cr: float, k: int
+) -> Tuple[np.ndarray, np.ndarray]:
     """Neighbour matrices of every robot of one or many swarm snapshots.
 
     Args:
@@ -73,13 +83,14 @@ def neighbour_matrix(z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int
     z_now = np.asarray(z_now)
     z_delayed = np.asarray(z_delayed)
     if z_now.shape != z_delayed.shape:
-        raise ValueError(f"z_now {z_now.shape} and z_delayed {z_delayed.shape} differ in shape")
+        raise ValueError(f'z_now {z_now.shape} and z_delayed {z_delayed.shape} differ in shape')
     index, valid = neighbour_index(z_delayed, position_dim, d_cr, k)
     return _assemble(z_now, z_delayed, index, valid)
 
 
-def neighbour_index(z_delayed: np.ndarray, position_dim: int, d_cr: float,
-                    k: int) -> Tuple[np.ndarray, np.ndarray]:
+def neighbour_index(
+    z_delayed: np.ndarray, position_dim: int, d_cr: float, k: int
+) -> Tuple[np.ndarray, np.ndarray]:
     """Who is in whose neighbour matrix: the ranking step of :func:`neighbour_matrix` alone.
 
     Args:
@@ -90,9 +101,9 @@ def neighbour_index(z_delayed: np.ndarray, position_dim: int, d_cr: float,
         invalid) and ``valid [..., n, k-1]`` bool.
     """
     if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
+        raise ValueError(f'k must be >= 1, got {k}')
     pos = np.asarray(z_delayed)[..., :position_dim]
-    dist = pair_distances(pos)      # inf diagonal: a robot is not its own neighbour
+    dist = pair_distances(pos)  # inf diagonal: a robot is not its own neighbour
     return _rank(dist, d_cr, k)
 
 
@@ -109,20 +120,23 @@ def neighbour_matrix_torch(z_now, z_delayed, position_dim: int, d_cr: float, k: 
     import torch
 
     if z_now.shape != z_delayed.shape:
-        raise ValueError(f"z_now {tuple(z_now.shape)} and z_delayed {tuple(z_delayed.shape)} differ in shape")
+        raise ValueError(f'z_now {tuple(z_now.shape)} and z_delayed {tuple(z_delayed.shape)} differ in shape')
     index, valid = neighbour_index(z_delayed.detach().cpu().numpy(), position_dim, d_cr, k)
     index_t = torch.from_numpy(index).to(z_now.device)
     valid_t = torch.from_numpy(valid).to(device=z_now.device, dtype=z_now.dtype)
     lead, (n, d) = z_delayed.shape[:-2], z_delayed.shape[-2:]
-    src = z_delayed.unsqueeze(-3).expand(lead + (n, n, d))                       # [..., n, n, d]
+    src = z_delayed.unsqueeze(-3).expand(lead + (n, n, d))  # [..., n, n, d]
     rows = torch.gather(src, -2, index_t.unsqueeze(-1).expand(index.shape + (d,))) * valid_t.unsqueeze(-1)
     Y = torch.cat([z_now.unsqueeze(-2), rows], dim=-2)
-    mask = torch.cat([torch.ones(valid_t.shape[:-1] + (1,), dtype=z_now.dtype, device=z_now.device), valid_t], -1)
+    mask = torch.cat(
+        [torch.ones(valid_t.shape[:-1] + (1,), dtype=z_now.dtype, device=z_now.device), valid_t], -1
+    )
     return Y, mask
 
 
-def neighbour_matrix_single(i: int, z_now_i: np.ndarray, z_delayed: np.ndarray,
-                            position_dim: int, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
+def neighbour_matrix_single(
+    i: int, z_now_i: np.ndarray, z_delayed: np.ndarray, position_dim: int, d_cr: float, k: int
+) -> Tuple[np.ndarray, np.ndarray]:
     """Neighbour matrix of robot ``i`` alone (what an agent node computes).
 
     Args:
@@ -139,8 +153,9 @@ def neighbour_matrix_single(i: int, z_now_i: np.ndarray, z_delayed: np.ndarray,
     return Y[0], mask[0]
 
 
-def neighbour_matrix_rows(rows, z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int,
-                          d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
+def neighbour_matrix_rows(
+    rows, z_now: np.ndarray, z_delayed: np.ndarray, position_dim: int, d_cr: float, k: int
+) -> Tuple[np.ndarray, np.ndarray]:
     """Neighbour matrices of the robots at ``rows`` of one snapshot (the robots a process hosts).
 
     Each robot's matrix is computed from its own row of distances alone, so the result is
@@ -156,12 +171,12 @@ def neighbour_matrix_rows(rows, z_now: np.ndarray, z_delayed: np.ndarray, positi
         ``Y [q, k, d]`` and ``mask [q, k]`` bool.
     """
     if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
+        raise ValueError(f'k must be >= 1, got {k}')
     rows = np.asarray(rows, dtype=np.int64).reshape(-1)
     z_delayed = np.asarray(z_delayed)
     pos = z_delayed[:, :position_dim]
     dist = distances(pos[rows], pos)
-    dist[np.arange(len(rows)), rows] = np.inf   # a robot is not its own neighbour
+    dist[np.arange(len(rows)), rows] = np.inf  # a robot is not its own neighbour
     index, valid = _rank(dist, d_cr, k)
     return _assemble(np.asarray(z_now), z_delayed, index, valid)
 
@@ -169,12 +184,13 @@ def neighbour_matrix_rows(rows, z_now: np.ndarray, z_delayed: np.ndarray, positi
 def delayed_index(T: int, tau: int) -> np.ndarray:
     """Frame index of t - tau for t = 0..T-1, clamped at the earliest frame."""
     if tau < 0:
-        raise ValueError(f"tau must be >= 0, got {tau}")
+        raise ValueError(f'tau must be >= 0, got {tau}')
     return np.maximum(np.arange(T) - tau, 0)
 
 
-def neighbour_matrices(states: np.ndarray, position_dim: int, d_cr: float, k: int,
-                       tau: int) -> Tuple[np.ndarray, np.ndarray]:
+def neighbour_matrices(
+    states: np.ndarray, position_dim: int, d_cr: float, k: int, tau: int
+) -> Tuple[np.ndarray, np.ndarray]:
     """Neighbour matrices for whole trajectories (the paper's S(t - tau) Z(t - tau)).
 
     Args:

@@ -14,6 +14,7 @@
 
 The forward signature is the policy file contract: ``forward(Y [B, k, d], mask [B, k]) -> [B, m]``.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
@@ -22,11 +23,16 @@ from typing import Any, Dict, Optional
 import torch
 from torch import Tensor, nn
 
-from .knowledge import (AvoidanceGain, collision_avoidance, continuous_collision_avoidance,
-                        continuous_wall_avoidance, wall_avoidance)
+from .knowledge import (
+    AvoidanceGain,
+    collision_avoidance,
+    continuous_collision_avoidance,
+    continuous_wall_avoidance,
+    wall_avoidance,
+)
 from .scenarios import get_scenario
 
-__all__ = ["PolicyConfig", "KNODEPolicy", "DEFAULTS"]
+__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS']
 
 
 @dataclass
@@ -42,10 +48,10 @@ class PolicyConfig:
     d_cr: float = 5.0
     tau: int = 0
     hidden: int = 128
-    frame: str = "relative"
+    frame: str = 'relative'
     command_limit: float = 10.0
     collision: bool = True
-    potential: str = "paper"
+    potential: str = 'paper'
     collision_a: float = 0.0
     collision_phi: float = 1.0
     collision_d0: float = 1.0
@@ -57,25 +63,51 @@ class PolicyConfig:
 
     def __post_init__(self):
         get_scenario(self.scenario)  # raises on an unknown name
-        checks = {"k": self.k >= 1, "d_cr": self.d_cr > 0, "tau": self.tau >= 0,
-                  "hidden": self.hidden >= 1, "frame": self.frame in ("relative", "absolute"),
-                  "potential": self.potential in ("paper", "continuous"),
-                  "command_limit": self.command_limit > 0, "collision_d0": self.collision_d0 > 0,
-                  "wall_d0": self.wall_d0 > 0, "collision_a": self.collision_a >= 0,
-                  "wall_a": self.wall_a >= 0}
+        checks = {
+            'k': self.k >= 1,
+            'd_cr': self.d_cr > 0,
+            'tau': self.tau >= 0,
+            'hidden': self.hidden >= 1,
+            'frame': self.frame in ('relative', 'absolute'),
+            'potential': self.potential in ('paper', 'continuous'),
+            'command_limit': self.command_limit > 0,
+            'collision_d0': self.collision_d0 > 0,
+            'wall_d0': self.wall_d0 > 0,
+            'collision_a': self.collision_a >= 0,
+            'wall_a': self.wall_a >= 0,
+        }
         for name, ok in checks.items():
             if not ok:
-                raise ValueError(f"policy config: invalid {name} = {getattr(self, name)!r}")
+                raise ValueError(f'policy config: invalid {name} = {getattr(self, name)!r}')
 
 
 # The paper's settings per scenario (flock2d: lambda = a + phi^2 for collisions;
 # boids3d: lambda = phi^2 for collisions and walls, tau = 1, d_cr = 2). phi starts at 1,
 # never 0: phi = 0 is a stationary point of phi^2, where the gain would never train.
 DEFAULTS: Dict[str, Dict[str, Any]] = {
-    "flock2d": dict(k=6, d_cr=5.0, tau=0, command_limit=10.0, collision_a=1.0, collision_phi=1.0,
-                    collision_d0=1.0, wall=False),
-    "boids3d": dict(k=6, d_cr=2.0, tau=1, command_limit=10.0, collision_a=0.0, collision_phi=1.0,
-                    collision_d0=1.0, wall=True, wall_a=0.0, wall_phi=1.0, wall_d0=1.0),
+    'flock2d': dict(
+        k=6,
+        d_cr=5.0,
+        tau=0,
+        command_limit=10.0,
+        collision_a=1.0,
+        collision_phi=1.0,
+        collision_d0=1.0,
+        wall=False,
+    ),
+    'boids3d': dict(
+        k=6,
+        d_cr=2.0,
+        tau=1,
+        command_limit=10.0,
+        collision_a=0.0,
+        collision_phi=1.0,
+        collision_d0=1.0,
+        wall=True,
+        wall_a=0.0,
+        wall_phi=1.0,
+        wall_d0=1.0,
+    ),
 }
 
 
@@ -93,18 +125,19 @@ class KNODEPolicy(nn.Module):
         self.state_dim = spec.state_dim
         self.position_dim = spec.position_dim
         self.command_dim = spec.command_dim
-        self.relative = config.frame == "relative"
+        self.relative = config.frame == 'relative'
         self.keep_own_position = not spec.translation_invariant
         self.command_limit = float(config.command_limit)
         self.use_collision = bool(config.collision)
         self.collision_d0 = float(config.collision_d0)
         self.use_wall = bool(config.wall) and spec.box is not None
         self.wall_d0 = float(config.wall_d0)
-        self.continuous = config.potential == "continuous"
+        self.continuous = config.potential == 'continuous'
         self.box = float(spec.box) if spec.box is not None else 0.0
         n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
-        self.net = nn.Sequential(nn.Linear(n_in, config.hidden), nn.Tanh(),
-                                 nn.Linear(config.hidden, spec.command_dim))
+        self.net = nn.Sequential(
+            nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
+        )
         self.collision_gain = AvoidanceGain(config.collision_a, config.collision_phi)
         self.wall_gain = AvoidanceGain(config.wall_a, config.wall_phi)
 
@@ -115,7 +148,9 @@ class KNODEPolicy(nn.Module):
             return (Y * m).flatten(1)
         own = Y[:, 0, :]
         if not self.keep_own_position:
-            own = torch.cat([torch.zeros_like(own[:, :self.position_dim]), own[:, self.position_dim:]], dim=1)
+            own = torch.cat(
+                [torch.zeros_like(own[:, : self.position_dim]), own[:, self.position_dim :]], dim=1
+            )
         rel = (Y[:, 1:, :] - Y[:, :1, :]) * m[:, 1:, :]
         return torch.cat([own, rel.flatten(1), mask[:, 1:].to(Y.dtype)], dim=1)
 
@@ -124,12 +159,15 @@ class KNODEPolicy(nn.Module):
         out = torch.zeros(Y.shape[0], self.command_dim, dtype=Y.dtype, device=Y.device)
         if self.use_collision:
             if self.continuous:
-                out = out + continuous_collision_avoidance(Y, mask, self.position_dim, self.collision_gain(),
-                                                           self.collision_d0)
+                out = out + continuous_collision_avoidance(
+                    Y, mask, self.position_dim, self.collision_gain(), self.collision_d0
+                )
             else:
-                out = out + collision_avoidance(Y, mask, self.position_dim, self.collision_gain(), self.collision_d0)
+                out = out + collision_avoidance(
+                    Y, mask, self.position_dim, self.collision_gain(), self.collision_d0
+                )
         if self.use_wall:
-            own = Y[:, 0, :self.position_dim]
+            own = Y[:, 0, : self.position_dim]
             if self.continuous:
                 out = out + continuous_wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
             else:
@@ -144,12 +182,21 @@ class KNODEPolicy(nn.Module):
     def metadata(self, dt: Optional[float] = None) -> Dict[str, Any]:
         """The ``knode.json`` object of docs/DESIGN.md for this policy."""
         spec = get_scenario(self.config.scenario)
-        meta = {"format": "knode-policy/1", "scenario": spec.name, "state_dim": spec.state_dim,
-                "command_dim": spec.command_dim, "command": spec.command, "k": self.config.k,
-                "d_cr": float(self.config.d_cr), "tau": int(self.config.tau),
-                "dt": float(spec.dt if dt is None else dt), "state_layout": list(spec.state_layout),
-                "command_limit": self.command_limit, "frame": self.config.frame,
-                "hidden": self.config.hidden, "config": {k: v for k, v in asdict(self.config).items()
-                                                         if k != "extra"}}
+        meta = {
+            'format': 'knode-policy/1',
+            'scenario': spec.name,
+            'state_dim': spec.state_dim,
+            'command_dim': spec.command_dim,
+            'command': spec.command,
+            'k': self.config.k,
+            'd_cr': float(self.config.d_cr),
+            'tau': int(self.config.tau),
+            'dt': float(spec.dt if dt is None else dt),
+            'state_layout': list(spec.state_layout),
+            'command_limit': self.command_limit,
+            'frame': self.config.frame,
+            'hidden': self.config.hidden,
+            'config': {k: v for k, v in asdict(self.config).items() if k != 'extra'},
+        }
         meta.update(self.config.extra)
         return meta

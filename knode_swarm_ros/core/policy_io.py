@@ -6,6 +6,7 @@ returns the command, with ``knode.json`` metadata in its extra files (docs/DESIG
 real call, so a bad file fails at start with a message naming the field, never deep
 inside torch in the control loop.
 """
+
 from __future__ import annotations
 
 import json
@@ -17,12 +18,28 @@ from typing import Any, Dict, Optional, Union
 import numpy as np
 import torch
 
-from .policy_meta import BOUNDS, FORMAT, REQUIRED_KEYS, PolicyError, check_meta, parse_meta, shipped_policy_path
+from .policy_meta import (
+    BOUNDS,
+    FORMAT,
+    REQUIRED_KEYS,
+    PolicyError,
+    check_meta,
+    parse_meta,
+    shipped_policy_path,
+)
 from .policy_runtime import PolicyView
 from .trajectory import atomic_write
 
-__all__ = ["PolicyError", "LoadedPolicy", "export_policy", "load_policy", "shipped_policy_path",
-           "REQUIRED_KEYS", "FORMAT", "BOUNDS"]
+__all__ = [
+    'PolicyError',
+    'LoadedPolicy',
+    'export_policy',
+    'load_policy',
+    'shipped_policy_path',
+    'REQUIRED_KEYS',
+    'FORMAT',
+    'BOUNDS',
+]
 
 PathLike = Union[str, os.PathLike]
 # One definition of the metadata contract (torch-free, shared with the onnxruntime path).
@@ -41,7 +58,7 @@ class LoadedPolicy(PolicyView):
     meta: Dict[str, Any]
     path: str
 
-    backend = "torchscript"
+    backend = 'torchscript'
 
     def __call__(self, Y, mask) -> np.ndarray:
         Yt = torch.as_tensor(np.asarray(Y), dtype=torch.float32)
@@ -53,8 +70,8 @@ class LoadedPolicy(PolicyView):
 def _with_jit_quiet(fn, *args, **kwargs):
     # TorchScript is deprecated upstream but remains this project's deployment format.
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        warnings.simplefilter("ignore", FutureWarning)
+        warnings.simplefilter('ignore', DeprecationWarning)
+        warnings.simplefilter('ignore', FutureWarning)
         return fn(*args, **kwargs)
 
 
@@ -71,7 +88,7 @@ def export_policy(policy: torch.nn.Module, path: PathLike, meta: Dict[str, Any])
         scripted = _with_jit_quiet(torch.jit.script, policy)
     finally:
         policy.train(was_training)
-    extra = {"knode.json": json.dumps(meta, sort_keys=True)}
+    extra = {'knode.json': json.dumps(meta, sort_keys=True)}
 
     def write(tmp):
         _with_jit_quiet(torch.jit.save, scripted, tmp, _extra_files=extra)
@@ -82,7 +99,7 @@ def export_policy(policy: torch.nn.Module, path: PathLike, meta: Dict[str, Any])
 
 def _probe(where: str, module, meta: Dict[str, Any]) -> None:
     """One forward call on a dummy batch: catches wrong signatures and output shapes."""
-    k, d, m = int(meta["k"]), int(meta["state_dim"]), int(meta["command_dim"])
+    k, d, m = int(meta['k']), int(meta['state_dim']), int(meta['command_dim'])
     Y = torch.zeros(2, k, d)
     Y[1, 0, 0] = 1.0
     mask = torch.zeros(2, k)
@@ -92,14 +109,14 @@ def _probe(where: str, module, meta: Dict[str, Any]) -> None:
             out = module(Y, mask)
     except Exception as exc:  # TorchScript raises many types; report them all the same way
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise PolicyError(f"{where}: forward(Y[2, {k}, {d}], mask[2, {k}]) failed: {first}") from None
+        raise PolicyError(f'{where}: forward(Y[2, {k}, {d}], mask[2, {k}]) failed: {first}') from None
     if not isinstance(out, torch.Tensor) or tuple(out.shape) != (2, m):
         shape = tuple(out.shape) if isinstance(out, torch.Tensor) else type(out).__name__
-        raise PolicyError(f"{where}: forward returned {shape}, expected a tensor of shape (2, {m})")
+        raise PolicyError(f'{where}: forward returned {shape}, expected a tensor of shape (2, {m})')
     if out.dtype != torch.float32:
-        raise PolicyError(f"{where}: forward returned dtype {out.dtype}, expected torch.float32")
+        raise PolicyError(f'{where}: forward returned dtype {out.dtype}, expected torch.float32')
     if not torch.all(torch.isfinite(out)):
-        raise PolicyError(f"{where}: forward returned non-finite commands on a dummy batch")
+        raise PolicyError(f'{where}: forward returned non-finite commands on a dummy batch')
 
 
 def load_policy(path: PathLike, expect: Optional[Dict[str, Any]] = None) -> LoadedPolicy:
@@ -114,18 +131,18 @@ def load_policy(path: PathLike, expect: Optional[Dict[str, Any]] = None) -> Load
         PolicyError: missing file, not a TorchScript archive, missing or invalid ``knode.json``,
             a forward that fails or returns the wrong shape.
     """
-    where = f"policy file {os.fspath(path)}"
+    where = f'policy file {os.fspath(path)}'
     if not os.path.isfile(path):
-        raise PolicyError(f"{where}: no such file")
-    extra = {"knode.json": ""}
+        raise PolicyError(f'{where}: no such file')
+    extra = {'knode.json': ''}
     try:
-        module = _with_jit_quiet(torch.jit.load, os.fspath(path), map_location="cpu", _extra_files=extra)
+        module = _with_jit_quiet(torch.jit.load, os.fspath(path), map_location='cpu', _extra_files=extra)
     except Exception as exc:  # torch reports corrupt archives with RuntimeError and friends
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise PolicyError(f"{where}: not a readable TorchScript archive ({first})") from None
-    if not extra["knode.json"]:
+        raise PolicyError(f'{where}: not a readable TorchScript archive ({first})') from None
+    if not extra['knode.json']:
         raise PolicyError(f"{where}: no knode.json metadata in the archive's extra files")
-    meta = parse_meta(where, extra["knode.json"])
+    meta = parse_meta(where, extra['knode.json'])
     _check_meta(where, meta, expect)
     module.eval()
     _probe(where, module, meta)

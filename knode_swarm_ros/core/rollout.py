@@ -9,6 +9,7 @@ robot, and the command is held over the step (zero-order hold), integrated exact
 The simulator node and the parity tests use :func:`zoh_step`; offline evaluation uses
 :func:`rollout`, batched over several swarms at once.
 """
+
 from __future__ import annotations
 
 from typing import Callable, Optional
@@ -19,7 +20,7 @@ from .network import neighbour_matrix, neighbour_matrix_torch
 from .saturation import saturate
 from .scenarios import Scenario, get_scenario
 
-__all__ = ["zoh_step", "zoh_step_torch", "rollout", "rollout_torch", "policy_commands", "PolicyFn"]
+__all__ = ['zoh_step', 'zoh_step_torch', 'rollout', 'rollout_torch', 'policy_commands', 'PolicyFn']
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -32,7 +33,7 @@ def zoh_step(states: np.ndarray, command: np.ndarray, scenario: Scenario, dt: fl
     p = scenario.position
     new = np.array(states, dtype=np.float64, copy=True)
     c = np.asarray(command, dtype=np.float64)
-    if scenario.command == "acceleration":
+    if scenario.command == 'acceleration':
         v = new[..., scenario.velocity]
         new[..., p] = new[..., p] + v * dt + 0.5 * c * dt * dt
         new[..., scenario.velocity] = v + c * dt
@@ -51,7 +52,7 @@ def zoh_step_torch(z, command, scenario: Scenario, dt: float):
     import torch
 
     p = scenario.position_dim
-    if scenario.command == "acceleration":
+    if scenario.command == 'acceleration':
         v = z[..., p:]
         return torch.cat([z[..., :p] + v * dt + 0.5 * command * dt * dt, v + command * dt], dim=-1)
     return torch.cat([z[..., :p] + command * dt, heading_torch(command, z[..., p:])], dim=-1)
@@ -65,8 +66,15 @@ def heading_torch(c, fallback):
     return torch.where(speed > 0, c / speed.clamp(min=1e-12), fallback)
 
 
-def policy_commands(policy: PolicyFn, z_now: np.ndarray, z_delayed: np.ndarray, scenario: Scenario,
-                    d_cr: float, k: int, command_limit: Optional[float] = None) -> np.ndarray:
+def policy_commands(
+    policy: PolicyFn,
+    z_now: np.ndarray,
+    z_delayed: np.ndarray,
+    scenario: Scenario,
+    d_cr: float,
+    k: int,
+    command_limit: Optional[float] = None,
+) -> np.ndarray:
     """Commands ``[..., n, m]`` of every robot: neighbour matrices, then one batched policy call,
     saturated per axis at ``command_limit`` (:func:`core.saturation.saturate`, the agent's rule)."""
     Y, mask = neighbour_matrix(z_now, z_delayed, scenario.position_dim, d_cr, k)
@@ -76,9 +84,18 @@ def policy_commands(policy: PolicyFn, z_now: np.ndarray, z_delayed: np.ndarray, 
     return out.reshape(lead + (scenario.command_dim,))
 
 
-def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: float, k: int,
-            tau: int, dt: float, progress: Optional[Callable[[int], None]] = None,
-            command_limit=_POLICY_LIMIT) -> np.ndarray:
+def rollout(
+    policy: PolicyFn,
+    z0: np.ndarray,
+    steps: int,
+    scenario: str,
+    d_cr: float,
+    k: int,
+    tau: int,
+    dt: float,
+    progress: Optional[Callable[[int], None]] = None,
+    command_limit=_POLICY_LIMIT,
+) -> np.ndarray:
     """Roll a policy out from initial states.
 
     Args:
@@ -100,11 +117,11 @@ def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: f
     if single:
         z0 = z0[None]
     if z0.ndim != 3 or z0.shape[-1] != spec.state_dim:
-        raise ValueError(f"z0 must be [n, {spec.state_dim}] or [S, n, {spec.state_dim}], got {z0.shape}")
+        raise ValueError(f'z0 must be [n, {spec.state_dim}] or [S, n, {spec.state_dim}], got {z0.shape}')
     if steps < 0:
-        raise ValueError(f"steps must be >= 0, got {steps}")
+        raise ValueError(f'steps must be >= 0, got {steps}')
     if command_limit is _POLICY_LIMIT:
-        command_limit = getattr(policy, "command_limit", None)
+        command_limit = getattr(policy, 'command_limit', None)
     out = np.empty((z0.shape[0], steps + 1) + z0.shape[1:], dtype=np.float64)
     out[:, 0] = z0
     for t in range(steps):
@@ -116,7 +133,9 @@ def rollout(policy: PolicyFn, z0: np.ndarray, steps: int, scenario: str, d_cr: f
     return out[0] if single else out
 
 
-def rollout_torch(policy, z0, steps: int, scenario: str, d_cr: float, k: int, tau: int, dt: float, history=None):
+def rollout_torch(
+    policy, z0, steps: int, scenario: str, d_cr: float, k: int, tau: int, dt: float, history=None
+):
     """:func:`rollout` for torch, differentiable: training through the deployment semantics.
 
     Every step rebuilds each robot's neighbour matrix from the rolled-out states themselves
@@ -137,9 +156,9 @@ def rollout_torch(policy, z0, steps: int, scenario: str, d_cr: float, k: int, ta
 
     spec = get_scenario(scenario)
     if z0.dim() != 3 or z0.shape[-1] != spec.state_dim:
-        raise ValueError(f"z0 must be [S, n, {spec.state_dim}], got {tuple(z0.shape)}")
+        raise ValueError(f'z0 must be [S, n, {spec.state_dim}], got {tuple(z0.shape)}')
     if history is not None and (history.dim() != 4 or history.shape[1] != tau):
-        raise ValueError(f"history must be [S, tau={tau}, n, d], got {tuple(history.shape)}")
+        raise ValueError(f'history must be [S, tau={tau}, n, d], got {tuple(history.shape)}')
     frames = [z0]
     for t in range(steps):
         j = t - tau

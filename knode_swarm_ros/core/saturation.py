@@ -8,6 +8,7 @@ zero acceleration would let it coast.
 
 numpy only (no torch, no ROS), so that any runtime (TorchScript, ONNX, a test) can call it.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,7 +16,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["effective_limit", "saturate", "stop_command"]
+__all__ = ['effective_limit', 'saturate', 'stop_command']
 
 
 def effective_limit(policy_limit: Optional[float], requested: Optional[float] = None) -> Optional[float]:
@@ -26,12 +27,12 @@ def effective_limit(policy_limit: Optional[float], requested: Optional[float] = 
         ValueError: a limit that is negative or not finite.
     """
     limits = []
-    for name, value in (("policy command_limit", policy_limit), ("requested command_limit", requested)):
+    for name, value in (('policy command_limit', policy_limit), ('requested command_limit', requested)):
         if value is None or value == 0:
             continue
         value = float(value)
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a finite number > 0, got {value}")
+            raise ValueError(f'{name} must be a finite number > 0, got {value}')
         limits.append(value)
     return min(limits) if limits else None
 
@@ -59,10 +60,10 @@ def stop_command(command_kind: str, velocity, limit: Optional[float], dt: float)
     reverses the velocity (``|c dt| <= |v|`` on every axis).
     """
     v = np.asarray(velocity, dtype=np.float64)
-    if command_kind == "velocity":
+    if command_kind == 'velocity':
         return np.zeros_like(v)
-    if command_kind != "acceleration":
-        raise ValueError(f"unknown command kind {command_kind!r}")
+    if command_kind != 'acceleration':
+        raise ValueError(f'unknown command kind {command_kind!r}')
     if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be > 0, got {dt}")
+        raise ValueError(f'dt must be > 0, got {dt}')
     return saturate(-v / float(dt), limit)

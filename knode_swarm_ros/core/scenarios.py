@@ -3,12 +3,13 @@
 A state vector z has ``state_dim`` entries laid out as ``state_layout``; positions always
 come first (``position``), followed by velocity (flock2d) or unit heading (boids3d).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Dict, Optional, Tuple
 
-__all__ = ["Scenario", "SCENARIOS", "get_scenario"]
+__all__ = ['Scenario', 'SCENARIOS', 'get_scenario']
 
 
 @dataclass(frozen=True)
@@ -50,12 +51,12 @@ class Scenario:
     @property
     def velocity(self) -> Optional[slice]:
         """Slice of z holding the velocity (flock2d), else None."""
-        return slice(self.position_dim, self.state_dim) if self.command == "acceleration" else None
+        return slice(self.position_dim, self.state_dim) if self.command == 'acceleration' else None
 
     @property
     def heading(self) -> Optional[slice]:
         """Slice of z holding the unit heading (boids3d), else None."""
-        return slice(self.position_dim, self.state_dim) if self.command == "velocity" else None
+        return slice(self.position_dim, self.state_dim) if self.command == 'velocity' else None
 
     @property
     def translation_invariant(self) -> bool:
@@ -63,8 +64,8 @@ class Scenario:
 
 
 SCENARIOS: Dict[str, Scenario] = {
-    "flock2d": Scenario("flock2d", ("px", "py", "vx", "vy"), 2, "acceleration", 0.01, None),
-    "boids3d": Scenario("boids3d", ("px", "py", "pz", "hx", "hy", "hz"), 3, "velocity", 1.0 / 60.0, 5.0),
+    'flock2d': Scenario('flock2d', ('px', 'py', 'vx', 'vy'), 2, 'acceleration', 0.01, None),
+    'boids3d': Scenario('boids3d', ('px', 'py', 'pz', 'hx', 'hy', 'hz'), 3, 'velocity', 1.0 / 60.0, 5.0),
 }
 
 
@@ -73,4 +74,4 @@ def get_scenario(name: str) -> Scenario:
     try:
         return SCENARIOS[name]
     except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(sorted(SCENARIOS))}") from None
+        raise ValueError(f'unknown scenario {name!r}; known: {", ".join(sorted(SCENARIOS))}') from None

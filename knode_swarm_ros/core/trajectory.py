@@ -3,6 +3,7 @@
 A file is an ``.npz`` with ``states`` float64 ``[trajectories, T, n, d]`` (T >= 1),
 ``dt`` (float), ``scenario`` (string) and ``meta`` (a JSON string).
 """
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,14 @@ import numpy as np
 from .errors import KnodeError
 from .scenarios import get_scenario
 
-__all__ = ["TrajectoryFile", "TrajectoryError", "load_trajectories", "save_trajectories",
-           "parse_trajectory_ref", "atomic_write"]
+__all__ = [
+    'TrajectoryFile',
+    'TrajectoryError',
+    'load_trajectories',
+    'save_trajectories',
+    'parse_trajectory_ref',
+    'atomic_write',
+]
 
 PathLike = Union[str, os.PathLike]
 
@@ -47,7 +54,7 @@ class TrajectoryFile:
     def split(self, name: str) -> np.ndarray:
         """Indices of the trajectories in split ``name`` (``train`` or ``test``) from ``meta['split']``;
         all trajectories when the file records no split."""
-        split = self.meta.get("split") or {}
+        split = self.meta.get('split') or {}
         if name not in split:
             return np.arange(self.states.shape[0])
         return np.asarray(split[name], dtype=np.int64)
@@ -57,7 +64,7 @@ def atomic_write(path: PathLike, write) -> None:
     """Call ``write(tmp_path)`` then rename onto ``path``, so a crash never leaves half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -76,9 +83,9 @@ def _scalar(where: str, name: str, value: np.ndarray, what: str, kinds: str):
     :class:`TrajectoryError` naming the field."""
     value = np.asarray(value)
     if value.ndim != 0 or value.dtype.kind not in kinds:
-        shape = f"an array of shape {value.shape}" if value.ndim else f"dtype {value.dtype}"
-        raise TrajectoryError(f"{where}: field {name!r} must be {what}, got {shape}")
-    return str(value) if kinds == "U" else float(value)
+        shape = f'an array of shape {value.shape}' if value.ndim else f'dtype {value.dtype}'
+        raise TrajectoryError(f'{where}: field {name!r} must be {what}, got {shape}')
+    return str(value) if kinds == 'U' else float(value)
 
 
 def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
@@ -87,29 +94,38 @@ def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
     except ValueError as exc:
         raise TrajectoryError(f"{where}: field 'scenario': {exc}") from None
     if states.ndim != 4:
-        raise TrajectoryError(f"{where}: field 'states' must be [trajectories, T, n, d], got shape {states.shape}")
+        raise TrajectoryError(
+            f"{where}: field 'states' must be [trajectories, T, n, d], got shape {states.shape}"
+        )
     if min(states.shape[:3]) < 1:
         raise TrajectoryError(f"{where}: field 'states' has an empty axis, shape {states.shape}")
     if states.shape[3] != spec.state_dim:
-        raise TrajectoryError(f"{where}: field 'states' has d = {states.shape[3]}, scenario {scenario} "
-                              f"needs d = {spec.state_dim} ({', '.join(spec.state_layout)})")
+        raise TrajectoryError(
+            f"{where}: field 'states' has d = {states.shape[3]}, scenario {scenario} "
+            f'needs d = {spec.state_dim} ({", ".join(spec.state_layout)})'
+        )
     if not np.all(np.isfinite(states)):
         bad = np.argwhere(~np.isfinite(states))[0]
-        raise TrajectoryError(f"{where}: field 'states' holds a non-finite value at index {tuple(int(i) for i in bad)}")
+        raise TrajectoryError(
+            f"{where}: field 'states' holds a non-finite value at index {tuple(int(i) for i in bad)}"
+        )
     if not (np.isfinite(dt) and dt > 0):
         raise TrajectoryError(f"{where}: field 'dt' must be a positive number, got {dt}")
 
 
-def save_trajectories(path: PathLike, states: np.ndarray, dt: float, scenario: str,
-                      meta: Optional[Dict[str, Any]] = None) -> None:
+def save_trajectories(
+    path: PathLike, states: np.ndarray, dt: float, scenario: str, meta: Optional[Dict[str, Any]] = None
+) -> None:
     """Validate and write a trajectory file atomically (temporary file, then rename)."""
     states = np.asarray(states, dtype=np.float64)
     _validate(str(path), states, float(dt), scenario)
     meta_json = json.dumps(meta or {}, sort_keys=True)
 
     def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, states=states, dt=np.float64(dt), scenario=np.str_(scenario), meta=np.str_(meta_json))
+        with open(tmp, 'wb') as fh:
+            np.savez(
+                fh, states=states, dt=np.float64(dt), scenario=np.str_(scenario), meta=np.str_(meta_json)
+            )
 
     atomic_write(path, write)
 
@@ -118,20 +134,20 @@ def load_trajectories(path: PathLike, scenario: Optional[str] = None) -> Traject
     """Read and validate a trajectory file; with ``scenario`` given, refuse another scenario."""
     where = str(path)
     if not os.path.isfile(path):
-        raise TrajectoryError(f"{where}: no such file")
+        raise TrajectoryError(f'{where}: no such file')
     try:
         with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in ("states", "dt", "scenario", "meta") if k not in data.files]
+            missing = [k for k in ('states', 'dt', 'scenario', 'meta') if k not in data.files]
             if missing:
-                raise TrajectoryError(f"{where}: missing field(s) {', '.join(missing)}")
-            states = np.asarray(data["states"], dtype=np.float64)
-            dt = _scalar(where, "dt", data["dt"], "a number (seconds between frames)", "fiu")
-            name = _scalar(where, "scenario", data["scenario"], "a string", "U")
-            meta_text = _scalar(where, "meta", data["meta"], "a JSON string", "U")
+                raise TrajectoryError(f'{where}: missing field(s) {", ".join(missing)}')
+            states = np.asarray(data['states'], dtype=np.float64)
+            dt = _scalar(where, 'dt', data['dt'], 'a number (seconds between frames)', 'fiu')
+            name = _scalar(where, 'scenario', data['scenario'], 'a string', 'U')
+            meta_text = _scalar(where, 'meta', data['meta'], 'a JSON string', 'U')
     except TrajectoryError:
         raise
     except (OSError, ValueError, TypeError, zipfile.BadZipFile, EOFError) as exc:
-        raise TrajectoryError(f"{where}: not a readable .npz trajectory file ({exc})") from None
+        raise TrajectoryError(f'{where}: not a readable .npz trajectory file ({exc})') from None
     try:
         meta = json.loads(meta_text) if meta_text else {}
     except json.JSONDecodeError as exc:
@@ -146,7 +162,7 @@ def load_trajectories(path: PathLike, scenario: Optional[str] = None) -> Traject
 
 def parse_trajectory_ref(ref: str) -> Tuple[str, int]:
     """Split ``FILE.npz[:TRAJ]`` into (path, trajectory index), index 0 by default."""
-    path, sep, index = ref.rpartition(":")
+    path, sep, index = ref.rpartition(':')
     if sep and index.isdigit() and path:
         return path, int(index)
     return ref, 0

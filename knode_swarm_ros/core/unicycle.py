@@ -39,16 +39,24 @@ agent counts those periods.
 that way and no limit binding, the closed loop is the policy's double-integrator swarm
 (to first order in omega T), which is why it is the default (docs/ros.md).
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Tuple
 
 import numpy as np
 
-__all__ = ['UnicycleLimits', 'UnicycleMapper', 'UnicycleRobots', 'unicycle_step', 'point_ahead',
-           'point_state', 'limit_twist']
+__all__ = [
+    'UnicycleLimits',
+    'UnicycleMapper',
+    'UnicycleRobots',
+    'unicycle_step',
+    'point_ahead',
+    'point_state',
+    'limit_twist',
+]
 
 
 @dataclass(frozen=True)
@@ -71,8 +79,9 @@ class UnicycleLimits:
                 raise ValueError(f'{name} must be finite and >= 0 (0: no limit), got {value}')
 
 
-def point_ahead(x: float, y: float, theta: float, v: float, omega: float, lookahead: float
-                ) -> Tuple[np.ndarray, np.ndarray]:
+def point_ahead(
+    x: float, y: float, theta: float, v: float, omega: float, lookahead: float
+) -> Tuple[np.ndarray, np.ndarray]:
     """Position ``[2]`` and velocity ``[2]`` of the point ``lookahead`` ahead of the axle."""
     c, s = math.cos(theta), math.sin(theta)
     pos = np.array([x + lookahead * c, y + lookahead * s])
@@ -86,8 +95,15 @@ def point_state(pose, v, omega, lookahead: float) -> np.ndarray:
     pose = np.asarray(pose, dtype=np.float64)
     v, omega = np.asarray(v, dtype=np.float64), np.asarray(omega, dtype=np.float64)
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    return np.stack([pose[..., 0] + lookahead * c, pose[..., 1] + lookahead * s,
-                     c * v - s * lookahead * omega, s * v + c * lookahead * omega], axis=-1)
+    return np.stack(
+        [
+            pose[..., 0] + lookahead * c,
+            pose[..., 1] + lookahead * s,
+            c * v - s * lookahead * omega,
+            s * v + c * lookahead * omega,
+        ],
+        axis=-1,
+    )
 
 
 def _clip(value, limit: float):
@@ -101,8 +117,10 @@ def limit_twist(v, omega, last_v, last_omega, limits: UnicycleLimits, period: fl
     """(v, omega) within the speed limits, then within ``max_*_accel * period`` of
     (``last_v``, ``last_omega``): floats or arrays ``[n]`` alike. The one clamp of the project:
     the agent's mapping and the simulated base both call it."""
-    return (_ramp(_clip(v, limits.max_linear_speed), last_v, limits.max_linear_accel * period),
-            _ramp(_clip(omega, limits.max_angular_speed), last_omega, limits.max_angular_accel * period))
+    return (
+        _ramp(_clip(v, limits.max_linear_speed), last_v, limits.max_linear_accel * period),
+        _ramp(_clip(omega, limits.max_angular_speed), last_omega, limits.max_angular_accel * period),
+    )
 
 
 def _ramp(value, last, step: float):
@@ -143,7 +161,9 @@ class UnicycleMapper:
             return u
         return np.asarray(velocity_now, dtype=np.float64)[:2] + u * self.period
 
-    def __call__(self, u, theta: float, velocity_now=(0.0, 0.0), omega_now: float = 0.0) -> Tuple[float, float]:
+    def __call__(
+        self, u, theta: float, velocity_now=(0.0, 0.0), omega_now: float = 0.0
+    ) -> Tuple[float, float]:
         """(v, omega) for the policy command ``u [2]`` at heading ``theta`` (rad), turning at
         ``omega_now`` (rad/s; mapped at the mid-period heading, see the module doc); the velocity
         of the point ahead now, ``velocity_now [2]``, is needed for acceleration policies."""
@@ -202,7 +222,9 @@ class UnicycleRobots:
     def step(self, command, dt: float) -> None:
         """Apply ``command [n, 2]`` = (v, omega) for ``dt`` seconds, within the limits."""
         command = np.asarray(command, dtype=np.float64)
-        self.speed, self.turn = limit_twist(command[:, 0], command[:, 1], self.speed, self.turn, self.limits, dt)
+        self.speed, self.turn = limit_twist(
+            command[:, 0], command[:, 1], self.speed, self.turn, self.limits, dt
+        )
         for i in range(self.pose.shape[0]):
             self.pose[i] = unicycle_step(self.pose[i], self.speed[i], self.turn[i], dt)
         self.pose[:, 2] = np.remainder(self.pose[:, 2] + math.pi, 2 * math.pi) - math.pi
@@ -210,5 +232,6 @@ class UnicycleRobots:
     def states(self) -> np.ndarray:
         """``[n, 4]`` flock2d states of the axle centres: (x, y, speed * heading)."""
         th = self.pose[:, 2]
-        return np.stack([self.pose[:, 0], self.pose[:, 1], self.speed * np.cos(th), self.speed * np.sin(th)],
-                        axis=-1)
+        return np.stack(
+            [self.pose[:, 0], self.pose[:, 1], self.speed * np.cos(th), self.speed * np.sin(th)], axis=-1
+        )

@@ -1,13 +1,12 @@
-"""ROS 2 plumbing for knode_swarm_ros: the agent, simulator, recorder and swarm executables.
+"""ROS 2 plumbing for knode_swarm_ros, one folder per executable.
 
-Each node module (``agent``, ``simulator``, ``recorder``) is a thin Node subclass with a
-module-level ``main()`` that its console script calls; the logic lives in ROS-free classes
-(``agent_logic``, ``simulator_logic``, ``recorder_logic``) on top of knode_swarm_ros.core.
-``conversions`` holds the one state/command <-> message mapping, ``qos`` one QoS profile per
-topic, ``swarm`` the multi-process launcher. See docs/ros.md.
+- :mod:`.agent`: one robot's controller (``agent``); :mod:`.agents`: several robots hosted in one
+  process (``agents``); :mod:`.simulator`; :mod:`.recorder`; :mod:`.lifecycle_manager` (managed
+  agents, ``swarm --managed``); :mod:`.swarm`: the multi-process launcher (no rclpy);
+- :mod:`.common`: what every node shares: the executor and signals, parameters, rclpy QoS
+  profiles, message conversions, RViz markers.
 
-Importing this package imports neither rclpy nor torch.
+Each executable's node is thin: the logic it wires to topics lives in :mod:`knode_swarm_ros.logic`
+(no rclpy). Importing this package, or any executable's package, has no side effects and imports
+neither rclpy nor torch; an executable's ``main`` loads them. See docs/ros.md.
 """
-from .startup import quiet_until_running
-
-quiet_until_running()  # in a node executable only: Ctrl-C during the slow imports exits quietly

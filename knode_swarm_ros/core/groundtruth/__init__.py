@@ -9,25 +9,40 @@
 :class:`TannerSwarm` and :class:`BoidsSwarm` step one or S swarms at a time (the simulator's
 ground-truth mode). See docs/groundtruth.md.
 """
+
 from __future__ import annotations
 
 from typing import Any, Dict, Optional
 
 import numpy as np
 
-from ..scenarios import get_scenario
-from . import boids, tanner
-from .boids import DISCARD_FRAMES, PRESETS as BOIDS_PRESETS, BoidsParams, BoidsSwarm
-from .tanner import VARIANTS as TANNER_VARIANTS, TannerSwarm
+from knode_swarm_ros.core.scenarios import get_scenario
 
-__all__ = ["simulate", "follow", "parameters", "presets", "default_preset", "TannerSwarm", "BoidsSwarm",
-           "BoidsParams", "DISCARD_FRAMES", "tanner", "boids"]
+from . import boids, tanner
+from .boids import DISCARD_FRAMES, BoidsParams, BoidsSwarm
+from .boids import PRESETS as BOIDS_PRESETS
+from .tanner import VARIANTS as TANNER_VARIANTS
+from .tanner import TannerSwarm
+
+__all__ = [
+    'simulate',
+    'follow',
+    'parameters',
+    'presets',
+    'default_preset',
+    'TannerSwarm',
+    'BoidsSwarm',
+    'BoidsParams',
+    'DISCARD_FRAMES',
+    'tanner',
+    'boids',
+]
 
 
 def presets(scenario: str) -> tuple:
     """Names of the presets of ``scenario`` (flock2d: its variants), the paper's first."""
     get_scenario(scenario)
-    return tuple(TANNER_VARIANTS) if scenario == "flock2d" else tuple(BOIDS_PRESETS)
+    return tuple(TANNER_VARIANTS) if scenario == 'flock2d' else tuple(BOIDS_PRESETS)
 
 
 def default_preset(scenario: str) -> str:
@@ -37,31 +52,45 @@ def default_preset(scenario: str) -> str:
 
 def _check_preset(scenario: str, preset: str) -> None:
     if preset not in presets(scenario):
-        kind = "variant" if scenario == "flock2d" else "preset"
-        raise ValueError(f"unknown {scenario} {kind} {preset!r}; known: {', '.join(presets(scenario))}")
+        kind = 'variant' if scenario == 'flock2d' else 'preset'
+        raise ValueError(f'unknown {scenario} {kind} {preset!r}; known: {", ".join(presets(scenario))}')
 
 
 def _check_min_separation(scenario: str, min_separation: Optional[float]) -> None:
     if min_separation is None:
         return
-    if scenario != "flock2d":
-        raise ValueError("min_separation applies to flock2d only")
+    if scenario != 'flock2d':
+        raise ValueError('min_separation applies to flock2d only')
     if not (np.isfinite(min_separation) and min_separation > 0):
-        raise ValueError(f"min_separation must be a positive number, got {min_separation!r}")
+        raise ValueError(f'min_separation must be a positive number, got {min_separation!r}')
 
 
-def parameters(scenario: str, preset: str = "paper", min_separation: Optional[float] = None) -> Dict[str, Any]:
+def parameters(
+    scenario: str, preset: str = 'paper', min_separation: Optional[float] = None
+) -> Dict[str, Any]:
     """Every parameter of the ground truth ``scenario``/``preset`` as a JSON-able dict (for ``meta``)."""
     _check_preset(scenario, preset)
     _check_min_separation(scenario, min_separation)
-    if scenario == "flock2d":
-        return {"model": "tanner_global", "variant": preset, "dt": tanner.DT, "integrator": "rk4_classical",
-                "accel_clip": tanner.variant_clip(preset), "v_max": tanner.V_MAX, "v_bias": tanner.V_BIAS,
-                "min_separation": min_separation,
-                "potential": "V(r) = 1/r^2 + log r^2",
-                **{k: v for k, v in TANNER_VARIANTS[preset].items() if k != "clip"}}
-    return {"model": "lague_boids", "preset": preset, "discard_frames": DISCARD_FRAMES,
-            "observation": "[p, v/|v|]", **BOIDS_PRESETS[preset].as_dict()}
+    if scenario == 'flock2d':
+        return {
+            'model': 'tanner_global',
+            'variant': preset,
+            'dt': tanner.DT,
+            'integrator': 'rk4_classical',
+            'accel_clip': tanner.variant_clip(preset),
+            'v_max': tanner.V_MAX,
+            'v_bias': tanner.V_BIAS,
+            'min_separation': min_separation,
+            'potential': 'V(r) = 1/r^2 + log r^2',
+            **{k: v for k, v in TANNER_VARIANTS[preset].items() if k != 'clip'},
+        }
+    return {
+        'model': 'lague_boids',
+        'preset': preset,
+        'discard_frames': DISCARD_FRAMES,
+        'observation': '[p, v/|v|]',
+        **BOIDS_PRESETS[preset].as_dict(),
+    }
 
 
 class _NoBar:
@@ -79,11 +108,20 @@ def _progress_bar(enabled: bool, total: int, desc: str):
     if not enabled:
         return _NoBar()
     from tqdm.auto import tqdm  # only here: robots importing the core need not have tqdm
-    return tqdm(total=total, desc=desc, unit="step", leave=False)
+
+    return tqdm(total=total, desc=desc, unit='step', leave=False)
 
 
-def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: int,
-             preset: str = "paper", progress: bool = True, min_separation: Optional[float] = None) -> np.ndarray:
+def simulate(
+    scenario: str,
+    trajectories: int,
+    robots: int,
+    steps: int,
+    seed: int,
+    preset: str = 'paper',
+    progress: bool = True,
+    min_separation: Optional[float] = None,
+) -> np.ndarray:
     """Simulate ``trajectories`` independent swarms of ``robots`` robots, all stepped together.
 
     Args:
@@ -106,12 +144,12 @@ def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: in
     get_scenario(scenario)
     _check_preset(scenario, preset)
     _check_min_separation(scenario, min_separation)
-    for name, value in (("trajectories", trajectories), ("robots", robots), ("steps", steps)):
+    for name, value in (('trajectories', trajectories), ('robots', robots), ('steps', steps)):
         if int(value) != value or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            raise ValueError(f'{name} must be a positive integer, got {value!r}')
     trajectories, robots, steps = int(trajectories), int(robots), int(steps)
     rng = np.random.default_rng(seed)
-    if scenario == "flock2d":
+    if scenario == 'flock2d':
         swarm = TannerSwarm(tanner.initial_states(rng, trajectories, robots, preset, min_separation), preset)
         skip = 0
     else:
@@ -119,7 +157,7 @@ def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: in
         skip = DISCARD_FRAMES
     out = np.empty((trajectories, steps, robots, get_scenario(scenario).state_dim))
     frame = swarm.observe()
-    with _progress_bar(progress, skip + steps - 1, f"{scenario} {preset}") as bar:
+    with _progress_bar(progress, skip + steps - 1, f'{scenario} {preset}') as bar:
         for _ in range(skip):
             frame = swarm.step()
             bar.update()
@@ -130,7 +168,7 @@ def simulate(scenario: str, trajectories: int, robots: int, steps: int, seed: in
     return out
 
 
-def follow(scenario: str, z0: np.ndarray, frames: int, dt: float, preset: str = "paper") -> np.ndarray:
+def follow(scenario: str, z0: np.ndarray, frames: int, dt: float, preset: str = 'paper') -> np.ndarray:
     """The ground-truth swarm from a given start ``z0 [n, d]``: ``[frames, n, d]`` sampled every
     ``dt`` (frame 0 = ``z0``), e.g. beside a recorded run of a learnt policy from the same start.
 
@@ -139,14 +177,14 @@ def follow(scenario: str, z0: np.ndarray, frames: int, dt: float, preset: str = 
     multiple of it, else at ``dt``. Raises ValueError for boids3d or a bad argument.
     """
     get_scenario(scenario)
-    if scenario != "flock2d":
-        raise ValueError(f"no ground truth can follow a {scenario} start (observations hold no speed)")
+    if scenario != 'flock2d':
+        raise ValueError(f'no ground truth can follow a {scenario} start (observations hold no speed)')
     _check_preset(scenario, preset)
     z0 = np.asarray(z0, dtype=np.float64)
     if z0.ndim != 2 or z0.shape[-1] != 4 or not np.all(np.isfinite(z0)):
-        raise ValueError(f"z0 must be a finite [n, 4] flock2d state, got shape {z0.shape}")
+        raise ValueError(f'z0 must be a finite [n, 4] flock2d state, got shape {z0.shape}')
     if int(frames) != frames or frames < 1 or not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"frames must be a positive integer and dt > 0, got {frames!r}, {dt!r}")
+        raise ValueError(f'frames must be a positive integer and dt > 0, got {frames!r}, {dt!r}')
     ratio = float(dt) / tanner.DT
     sub = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1 else 1
     swarm = TannerSwarm(z0[None], preset, dt=tanner.DT if sub > 1 or abs(ratio - 1) < 1e-6 else float(dt))

@@ -33,6 +33,7 @@ Differences from Unity: float64 instead of float32, a fixed dt = 1/60 instead of
 time, and no division by zero (coincident boids add no separation; a zero velocity after the
 acceleration keeps the previous heading). Arrays are ``[..., n, 3]`` with any leading axes.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -40,10 +41,25 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["BoidsParams", "PRESETS", "get_preset", "DISCARD_FRAMES", "golden_spiral_directions",
-           "normalise", "steer_towards", "flock_terms", "flocking_acceleration", "sweep_hits_wall",
-           "look_rotation", "avoidance_directions", "boids_acceleration", "boids_step",
-           "initial_boids", "observe", "BoidsSwarm"]
+__all__ = [
+    'BoidsParams',
+    'PRESETS',
+    'get_preset',
+    'DISCARD_FRAMES',
+    'golden_spiral_directions',
+    'normalise',
+    'steer_towards',
+    'flock_terms',
+    'flocking_acceleration',
+    'sweep_hits_wall',
+    'look_rotation',
+    'avoidance_directions',
+    'boids_acceleration',
+    'boids_step',
+    'initial_boids',
+    'observe',
+    'BoidsSwarm',
+]
 
 #: Frames discarded after spawning, as the paper does (its 1700 recorded steps start after them).
 DISCARD_FRAMES = 10
@@ -89,11 +105,11 @@ class BoidsParams:
 
     def __post_init__(self):
         if not 0 < self.min_speed <= self.max_speed:
-            raise ValueError(f"need 0 < min_speed <= max_speed, got {self.min_speed}, {self.max_speed}")
+            raise ValueError(f'need 0 < min_speed <= max_speed, got {self.min_speed}, {self.max_speed}')
         if self.num_directions < 1:
-            raise ValueError(f"num_directions must be >= 1, got {self.num_directions}")
+            raise ValueError(f'num_directions must be >= 1, got {self.num_directions}')
         if not self.box > self.bounds_radius:
-            raise ValueError(f"box ({self.box}) must exceed bounds_radius ({self.bounds_radius})")
+            raise ValueError(f'box ({self.box}) must exceed bounds_radius ({self.bounds_radius})')
 
     def as_dict(self) -> Dict[str, float]:
         return asdict(self)
@@ -102,9 +118,16 @@ class BoidsParams:
 #: ``paper``: the paper's (and Lague's default) settings; ``published``: those of the paper's
 #: published data set.
 PRESETS: Dict[str, BoidsParams] = {
-    "paper": BoidsParams(),
-    "published": BoidsParams(min_speed=5.0, max_speed=8.0, max_steer_force=8.0, align_weight=2.0,
-                             cohesion_weight=1.0, separate_weight=2.5, avoid_collision_weight=20.0),
+    'paper': BoidsParams(),
+    'published': BoidsParams(
+        min_speed=5.0,
+        max_speed=8.0,
+        max_steer_force=8.0,
+        align_weight=2.0,
+        cohesion_weight=1.0,
+        separate_weight=2.5,
+        avoid_collision_weight=20.0,
+    ),
 }
 
 
@@ -113,7 +136,7 @@ def get_preset(name: str) -> BoidsParams:
     try:
         return PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown boids3d preset {name!r}; known: {', '.join(PRESETS)}") from None
+        raise ValueError(f'unknown boids3d preset {name!r}; known: {", ".join(PRESETS)}') from None
 
 
 _SPIRAL_CACHE: Dict[int, np.ndarray] = {}
@@ -137,7 +160,7 @@ def golden_spiral_directions(num: int = 300) -> np.ndarray:
 
 
 def _norm(x: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.einsum("...k,...k->...", x, x))
+    return np.sqrt(np.einsum('...k,...k->...', x, x))
 
 
 def normalise(w: np.ndarray) -> np.ndarray:
@@ -147,15 +170,18 @@ def normalise(w: np.ndarray) -> np.ndarray:
     return np.where(m > NORMALISE_EPS, w / np.where(m > NORMALISE_EPS, m, 1.0), 0.0)
 
 
-def steer_towards(w: np.ndarray, velocity: np.ndarray, max_speed: float, max_steer_force: float) -> np.ndarray:
+def steer_towards(
+    w: np.ndarray, velocity: np.ndarray, max_speed: float, max_steer_force: float
+) -> np.ndarray:
     """clamp_magnitude(normalise(w) * max_speed - velocity, max_steer_force), ``[..., 3]``."""
     s = normalise(w) * max_speed - velocity
     m = _norm(s)[..., None]
     return s * np.where(m > max_steer_force, max_steer_force / np.where(m > 0, m, 1.0), 1.0)
 
 
-def flock_terms(positions: np.ndarray, headings: np.ndarray, params: BoidsParams
-                ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def flock_terms(
+    positions: np.ndarray, headings: np.ndarray, params: BoidsParams
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What each boid perceives of its flockmates (Lague's compute shader).
 
     Args:
@@ -169,18 +195,18 @@ def flock_terms(positions: np.ndarray, headings: np.ndarray, params: BoidsParams
     p = np.asarray(positions, dtype=np.float64)
     h = np.asarray(headings, dtype=np.float64)
     n = p.shape[-2]
-    off = p[..., None, :, :] - p[..., :, None, :]         # off[..., i, j] = p_j - p_i
-    sq = np.einsum("...k,...k->...", off, off)            # [..., n, n]
-    flock = sq < params.perception_radius ** 2
+    off = p[..., None, :, :] - p[..., :, None, :]  # off[..., i, j] = p_j - p_i
+    sq = np.einsum('...k,...k->...', off, off)  # [..., n, n]
+    flock = sq < params.perception_radius**2
     flock.reshape(-1, n * n)[:, :: n + 1] = False
-    near = flock & (sq < params.avoidance_radius ** 2) & (sq > 0.0)
+    near = flock & (sq < params.avoidance_radius**2) & (sq > 0.0)
     fl = flock.astype(np.float64)
     count = fl.sum(axis=-1)
-    alignment = np.einsum("...ij,...jk->...ik", fl, h)
-    centre = np.einsum("...ij,...jk->...ik", fl, p)
+    alignment = np.einsum('...ij,...jk->...ik', fl, h)
+    centre = np.einsum('...ij,...jk->...ik', fl, p)
     cohesion = np.where(count[..., None] > 0, centre / np.maximum(count, 1.0)[..., None] - p, 0.0)
     inv = np.where(near, 1.0 / np.where(near, sq, 1.0), 0.0)
-    separation = -np.einsum("...ij,...ijk->...ik", inv, off)
+    separation = -np.einsum('...ij,...ijk->...ik', inv, off)
     return count, alignment, cohesion, separation
 
 
@@ -189,9 +215,11 @@ def flocking_acceleration(positions: np.ndarray, velocities: np.ndarray, params:
     v = np.asarray(velocities, dtype=np.float64)
     count, align, coh, sep = flock_terms(positions, normalise(v), params)
     ms, mf = params.max_speed, params.max_steer_force
-    acc = (params.align_weight * steer_towards(align, v, ms, mf)
-           + params.cohesion_weight * steer_towards(coh, v, ms, mf)
-           + params.separate_weight * steer_towards(sep, v, ms, mf))
+    acc = (
+        params.align_weight * steer_towards(align, v, ms, mf)
+        + params.cohesion_weight * steer_towards(coh, v, ms, mf)
+        + params.separate_weight * steer_towards(sep, v, ms, mf)
+    )
     return np.where(count[..., None] > 0, acc, 0.0)
 
 
@@ -227,7 +255,7 @@ def look_rotation(forward: np.ndarray) -> np.ndarray:
     """Unity's ``Quaternion.LookRotation(forward, +y)`` as matrices ``[..., 3, 3]`` whose rows are
     right, up', forward (so ``local @ R`` maps local directions to world ones)."""
     f = np.asarray(forward, dtype=np.float64)
-    right = np.stack([f[..., 2], np.zeros_like(f[..., 0]), -f[..., 0]], axis=-1)   # +y x f
+    right = np.stack([f[..., 2], np.zeros_like(f[..., 0]), -f[..., 0]], axis=-1)  # +y x f
     m = _norm(right)[..., None]
     degenerate = m <= 1e-9
     right = np.where(degenerate, np.array([1.0, 0.0, 0.0]), right / np.where(degenerate, 1.0, m))
@@ -241,12 +269,12 @@ def avoidance_directions(positions: np.ndarray, headings: np.ndarray, params: Bo
     p = np.asarray(positions, dtype=np.float64)
     h = np.asarray(headings, dtype=np.float64)
     m = p.shape[0]
-    spiral = golden_spiral_directions(params.num_directions)          # [K, 3]
-    frames = look_rotation(h)                                          # [m, 3 (local), 3 (world)]
+    spiral = golden_spiral_directions(params.num_directions)  # [K, 3]
+    frames = look_rotation(h)  # [m, 3 (local), 3 (world)]
     # world components of every candidate, component-major: dirs[a, i, k] = (spiral[k] @ frames[i])[a]
     dirs = (frames.transpose(2, 0, 1).reshape(3 * m, 3) @ spiral.T).reshape(3, m, -1)
     lo, hi = _sweep_limits(p, params)
-    lo = lo.T[:, :, None]                                              # [3, m, 1]
+    lo = lo.T[:, :, None]  # [3, m, 1]
     hi = hi.T[:, :, None]
     ok = (dirs[0] < hi[0]) & (dirs[0] > lo[0])
     ok &= (dirs[1] < hi[1]) & (dirs[1] > lo[1])
@@ -263,17 +291,19 @@ def boids_acceleration(positions: np.ndarray, velocities: np.ndarray, params: Bo
     v = np.asarray(velocities, dtype=np.float64)
     acc = flocking_acceleration(p, v, params)
     h = normalise(v)
-    heading_for_collision = sweep_hits_wall(p, h, params)          # [..., n]
+    heading_for_collision = sweep_hits_wall(p, h, params)  # [..., n]
     if np.any(heading_for_collision):
         sel = heading_for_collision
         target = avoidance_directions(p[sel], h[sel], params)
         acc[sel] += params.avoid_collision_weight * steer_towards(
-            target, v[sel], params.max_speed, params.max_steer_force)
+            target, v[sel], params.max_speed, params.max_steer_force
+        )
     return acc
 
 
-def boids_step(positions: np.ndarray, velocities: np.ndarray, params: BoidsParams
-               ) -> Tuple[np.ndarray, np.ndarray]:
+def boids_step(
+    positions: np.ndarray, velocities: np.ndarray, params: BoidsParams
+) -> Tuple[np.ndarray, np.ndarray]:
     """Advance one frame: ``(positions, velocities) [..., n, 3]`` -> new ``(positions, velocities)``.
 
     v += a dt; |v| clamped to [min_speed, max_speed] (direction kept); p += v dt.
@@ -289,8 +319,9 @@ def boids_step(positions: np.ndarray, velocities: np.ndarray, params: BoidsParam
     return p + v_new * params.dt, v_new
 
 
-def initial_boids(rng: np.random.Generator, trajectories: int, n: int, params: BoidsParams
-                  ) -> Tuple[np.ndarray, np.ndarray]:
+def initial_boids(
+    rng: np.random.Generator, trajectories: int, n: int, params: BoidsParams
+) -> Tuple[np.ndarray, np.ndarray]:
     """Spawn ``trajectories`` swarms of ``n`` boids -> ``(positions, velocities) [S, n, 3]``.
 
     Positions uniform inside the ball of radius ``spawn_radius`` (direction from a normalised
@@ -298,7 +329,7 @@ def initial_boids(rng: np.random.Generator, trajectories: int, n: int, params: B
     (normalised Gaussian [S, n, 3]); speed (min_speed + max_speed) / 2. Draws in that order.
     """
     if trajectories < 1 or n < 1:
-        raise ValueError(f"need trajectories >= 1 and n >= 1, got {trajectories} and {n}")
+        raise ValueError(f'need trajectories >= 1 and n >= 1, got {trajectories} and {n}')
     S = int(trajectories)
 
     def unit(shape):
@@ -328,26 +359,30 @@ class BoidsSwarm:
         self.positions = np.array(positions, dtype=np.float64)
         self.velocities = np.array(velocities, dtype=np.float64)
         if self.positions.shape != self.velocities.shape or self.positions.shape[-1:] != (3,):
-            raise ValueError(f"positions and velocities must both be [..., n, 3], got "
-                             f"{self.positions.shape} and {self.velocities.shape}")
-        self.params = params if params is not None else PRESETS["paper"]
+            raise ValueError(
+                f'positions and velocities must both be [..., n, 3], got '
+                f'{self.positions.shape} and {self.velocities.shape}'
+            )
+        self.params = params if params is not None else PRESETS['paper']
 
     @classmethod
-    def spawn(cls, rng: np.random.Generator, trajectories: int, n: int,
-              params: Optional[BoidsParams] = None) -> "BoidsSwarm":
+    def spawn(
+        cls, rng: np.random.Generator, trajectories: int, n: int, params: Optional[BoidsParams] = None
+    ) -> 'BoidsSwarm':
         """New swarms spawned by :func:`initial_boids`."""
-        params = params if params is not None else PRESETS["paper"]
+        params = params if params is not None else PRESETS['paper']
         return cls(*initial_boids(rng, trajectories, n, params), params)
 
     @classmethod
-    def from_observation(cls, z: np.ndarray, params: Optional[BoidsParams] = None,
-                         speed: Optional[float] = None) -> "BoidsSwarm":
+    def from_observation(
+        cls, z: np.ndarray, params: Optional[BoidsParams] = None, speed: Optional[float] = None
+    ) -> 'BoidsSwarm':
         """Swarms from observations ``z [..., n, 6]`` = [p, h]; the speed, which z does not carry,
         defaults to the spawn speed (min_speed + max_speed) / 2."""
-        params = params if params is not None else PRESETS["paper"]
+        params = params if params is not None else PRESETS['paper']
         z = np.asarray(z, dtype=np.float64)
         if z.shape[-1:] != (6,):
-            raise ValueError(f"z must be [..., n, 6], got shape {z.shape}")
+            raise ValueError(f'z must be [..., n, 6], got shape {z.shape}')
         s = 0.5 * (params.min_speed + params.max_speed) if speed is None else float(speed)
         return cls(z[..., :3], normalise(z[..., 3:]) * s, params)
 
@@ -359,4 +394,3 @@ class BoidsSwarm:
     def observe(self) -> np.ndarray:
         """z = [p, v / |v|] ``[..., n, 6]``."""
         return observe(self.positions, self.velocities)
-

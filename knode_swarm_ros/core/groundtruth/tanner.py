@@ -19,24 +19,44 @@ Two named variants (see :data:`VARIANTS`):
 Everything is numpy, float64, vectorised over any leading axes ``[...]`` (trajectories):
 ``states[..., n, 4]``. One swarm is ``[1, n, 4]`` or simply ``[n, 4]``.
 """
+
 from __future__ import annotations
 
 from typing import Callable, Dict, Optional
 
 import numpy as np
 
-__all__ = ["VARIANTS", "DT", "pair_potential", "tanner_acceleration", "local_tanner_acceleration", "tanner_energy", "rk4",
-           "rk4_step", "initial_states", "variant_clip", "TannerSwarm"]
+__all__ = [
+    'VARIANTS',
+    'DT',
+    'pair_potential',
+    'tanner_acceleration',
+    'local_tanner_acceleration',
+    'tanner_energy',
+    'rk4',
+    'rk4_step',
+    'initial_states',
+    'variant_clip',
+    'TannerSwarm',
+]
 
 #: Ground-truth integration step (seconds), as in the paper.
 DT = 0.01
 
 #: Named variants: initial-condition recipe and the per-axis acceleration clip (None = unclipped).
 VARIANTS: Dict[str, Dict[str, object]] = {
-    "paper": {"clip": None, "disk_radius": "sqrt(n)", "speed": "|v| ~ U[0, 3], uniform direction",
-              "bias": "one per swarm, |b| ~ U[0, 3], uniform direction"},
-    "gym_flock": {"clip": 10.0, "disk_radius": "n**0.25", "speed": "per axis U(-3, 3)",
-                  "bias": "one per swarm, per axis U(-3, 3)"},
+    'paper': {
+        'clip': None,
+        'disk_radius': 'sqrt(n)',
+        'speed': '|v| ~ U[0, 3], uniform direction',
+        'bias': 'one per swarm, |b| ~ U[0, 3], uniform direction',
+    },
+    'gym_flock': {
+        'clip': 10.0,
+        'disk_radius': 'n**0.25',
+        'speed': 'per axis U(-3, 3)',
+        'bias': 'one per swarm, per axis U(-3, 3)',
+    },
 }
 
 #: Largest initial speed (paper) or per-axis velocity (gym_flock), and the same for the bias.
@@ -47,9 +67,9 @@ V_BIAS = 3.0
 def variant_clip(variant: str) -> Optional[float]:
     """Per-axis acceleration clip of ``variant`` (None for ``paper``); unknown names raise ValueError."""
     try:
-        return VARIANTS[variant]["clip"]  # type: ignore[return-value]
+        return VARIANTS[variant]['clip']  # type: ignore[return-value]
     except KeyError:
-        raise ValueError(f"unknown flock2d variant {variant!r}; known: {', '.join(VARIANTS)}") from None
+        raise ValueError(f'unknown flock2d variant {variant!r}; known: {", ".join(VARIANTS)}') from None
 
 
 def pair_potential(r: np.ndarray) -> np.ndarray:
@@ -92,12 +112,12 @@ def tanner_acceleration(states: np.ndarray, clip: Optional[float] = None) -> np.
     # -sum_j (v_i - v_j) = sum_j v_j - n v_i
     acc = v.sum(axis=-2, keepdims=True) - n * v
     dx, dy, r2 = _pair_offsets(states)
-    _set_diagonal(r2, np.inf)           # no self term: 1/inf = 0 and dx_ii = 0
-    inv = np.reciprocal(r2, out=r2)     # 1/r^2
+    _set_diagonal(r2, np.inf)  # no self term: 1/inf = 0 and dx_ii = 0
+    inv = np.reciprocal(r2, out=r2)  # 1/r^2
     c = inv * inv
-    np.subtract(inv, c, out=c)          # grad_{r_i} V_ij = 2 c_ij r_ij, c = 1/r^2 - 1/r^4
-    acc[..., 0] -= 2.0 * np.einsum("...ij,...ij->...i", c, dx)
-    acc[..., 1] -= 2.0 * np.einsum("...ij,...ij->...i", c, dy)
+    np.subtract(inv, c, out=c)  # grad_{r_i} V_ij = 2 c_ij r_ij, c = 1/r^2 - 1/r^4
+    acc[..., 0] -= 2.0 * np.einsum('...ij,...ij->...i', c, dx)
+    acc[..., 1] -= 2.0 * np.einsum('...ij,...ij->...i', c, dy)
     if clip is not None:
         np.clip(acc, -clip, clip, out=acc)
     return acc
@@ -118,12 +138,14 @@ def local_tanner_acceleration(Y: np.ndarray, mask: np.ndarray, clip: Optional[fl
     """
     Y = np.asarray(Y, dtype=np.float64)
     m = np.asarray(mask, dtype=bool)[:, 1:, None]
-    dp = Y[:, :1, :2] - Y[:, 1:, :2]                                  # r_ij = r_i - r_j  [B, k-1, 2]
+    dp = Y[:, :1, :2] - Y[:, 1:, :2]  # r_ij = r_i - r_j  [B, k-1, 2]
     r2 = np.sum(dp * dp, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide='ignore', invalid='ignore'):
         inv = np.where(r2 > 0, 1.0 / r2, 0.0)
     c = inv - inv * inv
-    acc = -np.sum(np.where(m, Y[:, :1, 2:] - Y[:, 1:, 2:], 0.0), axis=1) - 2.0 * np.sum(np.where(m, c * dp, 0.0), axis=1)
+    acc = -np.sum(np.where(m, Y[:, :1, 2:] - Y[:, 1:, 2:], 0.0), axis=1) - 2.0 * np.sum(
+        np.where(m, c * dp, 0.0), axis=1
+    )
     return acc if clip is None else np.clip(acc, -clip, clip)
 
 
@@ -135,7 +157,7 @@ def tanner_energy(states: np.ndarray) -> np.ndarray:
     """
     states = np.asarray(states, dtype=np.float64)
     _, _, r2 = _pair_offsets(states)
-    _set_diagonal(r2, 1.0)              # V(1) = 1 on the diagonal, removed below
+    _set_diagonal(r2, 1.0)  # V(1) = 1 on the diagonal, removed below
     n = states.shape[-2]
     pot = (1.0 / r2 + np.log(r2)).sum(axis=(-1, -2)) - n * 1.0
     kin = np.sum(states[..., 2:4] ** 2, axis=(-1, -2))
@@ -175,13 +197,19 @@ def rk4_step(states: np.ndarray, dt: float = DT, clip: Optional[float] = None) -
 def _min_pair_distance(xy: np.ndarray) -> np.ndarray:
     """Smallest pairwise distance per swarm, ``xy [S, n, 2] -> [S]`` (inf for n = 1)."""
     d = xy[:, :, None, :] - xy[:, None, :, :]
-    r2 = np.einsum("...k,...k->...", d, d)
+    r2 = np.einsum('...k,...k->...', d, d)
     _set_diagonal(r2, np.inf)
     return np.sqrt(r2.min(axis=(-1, -2)))
 
 
-def initial_states(rng: np.random.Generator, trajectories: int, n: int, variant: str = "paper",
-                   min_separation: Optional[float] = None, max_redraws: int = 10000) -> np.ndarray:
+def initial_states(
+    rng: np.random.Generator,
+    trajectories: int,
+    n: int,
+    variant: str = 'paper',
+    min_separation: Optional[float] = None,
+    max_redraws: int = 10000,
+) -> np.ndarray:
     """Random initial swarms ``[trajectories, n, 4]`` (float64).
 
     ``paper``: positions uniform by area on the disk of radius sqrt(n) (radius sqrt(n) * sqrt(U),
@@ -203,9 +231,9 @@ def initial_states(rng: np.random.Generator, trajectories: int, n: int, variant:
     """
     variant_clip(variant)
     if trajectories < 1 or n < 1:
-        raise ValueError(f"need trajectories >= 1 and n >= 1, got {trajectories} and {n}")
+        raise ValueError(f'need trajectories >= 1 and n >= 1, got {trajectories} and {n}')
     S = int(trajectories)
-    radius = np.sqrt(n) if variant == "paper" else n ** 0.25
+    radius = np.sqrt(n) if variant == 'paper' else n**0.25
 
     def disk(k):
         rho = radius * np.sqrt(rng.random((k, n)))
@@ -221,9 +249,11 @@ def initial_states(rng: np.random.Generator, trajectories: int, n: int, variant:
                 break
             out[bad, :, 0:2] = disk(bad.size)
         else:
-            raise ValueError(f"min_separation {min_separation} not reached for {n} robots on a disk of radius "
-                             f"{radius:.3g} after {max_redraws} redraws")
-    if variant == "paper":
+            raise ValueError(
+                f'min_separation {min_separation} not reached for {n} robots on a disk of radius '
+                f'{radius:.3g} after {max_redraws} redraws'
+            )
+    if variant == 'paper':
         speed = V_MAX * rng.random((S, n))
         phi = 2.0 * np.pi * rng.random((S, n))
         bias_speed = V_BIAS * rng.random(S)
@@ -244,10 +274,10 @@ class TannerSwarm:
     :meth:`step` advances it by one RK4 step and :meth:`observe` returns z (a copy).
     """
 
-    def __init__(self, states: np.ndarray, variant: str = "paper", dt: float = DT):
+    def __init__(self, states: np.ndarray, variant: str = 'paper', dt: float = DT):
         self.states = np.array(states, dtype=np.float64)
         if self.states.ndim < 2 or self.states.shape[-1] != 4:
-            raise ValueError(f"states must be [..., n, 4], got shape {self.states.shape}")
+            raise ValueError(f'states must be [..., n, 4], got shape {self.states.shape}')
         self.variant = variant
         self.clip = variant_clip(variant)
         self.dt = float(dt)

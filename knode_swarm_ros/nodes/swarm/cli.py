@@ -1,12 +1,14 @@
 """The ``swarm`` command line: its arguments and its entry point."""
+
 from __future__ import annotations
 
 import argparse
 import shutil
 import sys
 
-from ..agent_link import add_link_arguments
-from ..common import EXIT_CONFIG, EXIT_OK, MODES, ConfigError
+from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_OK, MODES, ConfigError
+from knode_swarm_ros.nodes.agent.link import add_link_arguments
+
 from . import hosting, robot_model
 from .console import say as _say
 from .plan import DOMAIN_RANGE, plan_run
@@ -17,51 +19,105 @@ __all__ = ['build_parser', 'main']
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog='swarm', description='Run a swarm of learnt controllers on this machine: the simulator, one agent '
-        'process per robot and the recorder, on a fresh ROS domain with localhost-only discovery.')
+        prog='swarm',
+        description='Run a swarm of learnt controllers on this machine: the simulator, one agent '
+        'process per robot and the recorder, on a fresh ROS domain with localhost-only discovery.',
+    )
     p.add_argument('--scenario', choices=('flock2d', 'boids3d'), help="default: the policy's, else flock2d")
     p.add_argument('--robots', type=int, help='number of robots (default: 10, or as many as --init has)')
-    p.add_argument('--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000')
+    p.add_argument(
+        '--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000'
+    )
     p.add_argument('--mode', choices=MODES, default='lockstep', help='default lockstep')
-    p.add_argument('--policy', help='TorchScript policy file (default: the shipped policy of the scenario; realtime: '
-                   'the one trained for --rate, e.g. policies/flock2d_20hz.pt, if shipped)')
-    p.add_argument('--policy-runtime', choices=('auto', 'torchscript', 'onnxruntime'), default='auto',
-                   help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto")
+    p.add_argument(
+        '--policy',
+        help='TorchScript policy file (default: the shipped policy of the scenario; realtime: '
+        'the one trained for --rate, e.g. policies/flock2d_20hz.pt, if shipped)',
+    )
+    p.add_argument(
+        '--policy-runtime',
+        choices=('auto', 'torchscript', 'onnxruntime'),
+        default='auto',
+        help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto",
+    )
     p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
-    p.add_argument('--seed', type=int, default=0, help='seed of the initial state (without --init); default 0')
+    p.add_argument(
+        '--seed', type=int, default=0, help='seed of the initial state (without --init); default 0'
+    )
     p.add_argument('--record', metavar='OUT.npz', required=True, help='trajectory file to write')
-    p.add_argument('--bag', metavar='OUT.mcap', help='also write the run as a bag of /robot_<id>/odom (an .mcap '
-                   'file, else a rosbag2 directory), for training.import_bag')
-    p.add_argument('--ground-truth', action='store_true',
-                   help='the simulator drives the robots with the Tanner / boids controller; no agents')
+    p.add_argument(
+        '--bag',
+        metavar='OUT.mcap',
+        help='also write the run as a bag of /robot_<id>/odom (an .mcap '
+        'file, else a rosbag2 directory), for training.import_bag',
+    )
+    p.add_argument(
+        '--ground-truth',
+        action='store_true',
+        help='the simulator drives the robots with the Tanner / boids controller; no agents',
+    )
     p.add_argument('--variant', default='', help='ground-truth variant / preset (default: paper)')
-    p.add_argument('--rate', type=float, default=20.0,
-                   help='realtime: control and publishing rate in Hz (simulated time); default 20')
-    p.add_argument('--rate-check', choices=('warn', 'refuse'), default='warn',
-                   help="realtime: when 1 / --rate differs from the policy's dt the agents warn (default) or refuse")
+    p.add_argument(
+        '--rate',
+        type=float,
+        default=20.0,
+        help='realtime: control and publishing rate in Hz (simulated time); default 20',
+    )
+    p.add_argument(
+        '--rate-check',
+        choices=('warn', 'refuse'),
+        default='warn',
+        help="realtime: when 1 / --rate differs from the policy's dt the agents warn (default) or refuse",
+    )
     p.add_argument('--real-time-factor', type=float, default=1.0, help='realtime: default 1')
     p.add_argument('--state-timeout', type=float, default=0.5, help="agents' state_timeout in s; default 0.5")
-    p.add_argument('--lockstep-timeout', type=float, default=5.0,
-                   help='lockstep: wall seconds before a silent agent is held at its last command; default 5')
-    p.add_argument('--startup-timeout', type=float, default=180.0,
-                   help='wall seconds for every process to be ready; default 180')
-    p.add_argument('--timeout', type=float, default=0.0, help='stop after this many wall seconds (0: no limit)')
-    p.add_argument('--no-parity-batch', action='store_true',
-                   help='agents evaluate a batch of 1 (faster; no bit-for-bit parity with core.rollout)')
-    p.add_argument('--on-agent-exit', choices=('continue', 'stop'), default='continue',
-                   help='when an agent process dies: go on without it (default) or stop the run')
-    p.add_argument('--domain-id', type=int, help=f'ROS_DOMAIN_ID (default: a free one, claimed, in {DOMAIN_RANGE[0]}..'
-                   f'{DOMAIN_RANGE[1]})')
+    p.add_argument(
+        '--lockstep-timeout',
+        type=float,
+        default=5.0,
+        help='lockstep: wall seconds before a silent agent is held at its last command; default 5',
+    )
+    p.add_argument(
+        '--startup-timeout',
+        type=float,
+        default=180.0,
+        help='wall seconds for every process to be ready; default 180',
+    )
+    p.add_argument(
+        '--timeout', type=float, default=0.0, help='stop after this many wall seconds (0: no limit)'
+    )
+    p.add_argument(
+        '--no-parity-batch',
+        action='store_true',
+        help='agents evaluate a batch of 1 (faster; no bit-for-bit parity with core.rollout)',
+    )
+    p.add_argument(
+        '--on-agent-exit',
+        choices=('continue', 'stop'),
+        default='continue',
+        help='when an agent process dies: go on without it (default) or stop the run',
+    )
+    p.add_argument(
+        '--domain-id',
+        type=int,
+        help=f'ROS_DOMAIN_ID (default: a free one, claimed, in {DOMAIN_RANGE[0]}..{DOMAIN_RANGE[1]})',
+    )
     p.add_argument('--figure', metavar='PNG', help='figure path (default: the recording with .png)')
     p.add_argument('--no-figure', action='store_true', help='do not draw a figure')
-    p.add_argument('--log-dir', help='where the processes\' logs, parameter files and reports go (default: a '
-                   'temporary folder, removed after a successful run unless --keep-logs)')
+    p.add_argument(
+        '--log-dir',
+        help="where the processes' logs, parameter files and reports go (default: a "
+        'temporary folder, removed after a successful run unless --keep-logs)',
+    )
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
     add_link_arguments(p)
     robot_model.add_arguments(p)
-    p.add_argument('--managed', action='store_true', help='agents as managed (lifecycle) nodes: configure every '
-                   'agent, then activate them together')
+    p.add_argument(
+        '--managed',
+        action='store_true',
+        help='agents as managed (lifecycle) nodes: configure every agent, then activate them together',
+    )
     hosting.add_arguments(p)
     return p
 

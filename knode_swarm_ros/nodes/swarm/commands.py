@@ -3,6 +3,7 @@
 :func:`build_commands` is pure: it returns the command lines and the parameter files they name
 (path -> parameters) without touching the disk; :func:`node_commands` also writes the files.
 """
+
 from __future__ import annotations
 
 import os
@@ -20,12 +21,14 @@ PACKAGE = 'knode_swarm_ros'
 def _scalar(value) -> str:
     """A value as the YAML scalar ``-p name:=value`` expects."""
     import yaml
+
     text = yaml.safe_dump(value, default_flow_style=True).strip()
     return text[:-3].strip() if text.endswith('...') else text
 
 
 def _write_params_file(path: Path, params: Dict) -> None:
     import yaml
+
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': params}}, sort_keys=True))
 
 
@@ -34,37 +37,76 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
     ``recorder``, [``lifecycle_manager``,] ``agent_<i>`` or ``agents_<a>_<b>``) and the parameter
     files those command lines name (path in ``plan.run_dir`` -> parameters). Pure."""
     gt = plan.ground_truth
-    sim = {'scenario': plan.scenario, 'robots': plan.robots, 'steps': plan.steps, 'mode': plan.mode,
-           'dt': float(plan.dt), 'seed': int(plan.seed), 'init': plan.init, 'variant': plan.variant,
-           'ground_truth': gt, 'real_time_factor': float(plan.real_time_factor), 'publish_rate': float(plan.rate),
-           'command_timeout': max(0.5, 3.0 / plan.rate), 'lockstep_timeout': float(plan.lockstep_timeout),
-           'startup_timeout': float(plan.startup_timeout), 'wait_for_agents': not gt, 'wait_for_recorder': True,
-           'd_cr': float(plan.d_cr), 'report': str(plan.run_dir / 'simulator.json'),
-           'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0)}
+    sim = {
+        'scenario': plan.scenario,
+        'robots': plan.robots,
+        'steps': plan.steps,
+        'mode': plan.mode,
+        'dt': float(plan.dt),
+        'seed': int(plan.seed),
+        'init': plan.init,
+        'variant': plan.variant,
+        'ground_truth': gt,
+        'real_time_factor': float(plan.real_time_factor),
+        'publish_rate': float(plan.rate),
+        'command_timeout': max(0.5, 3.0 / plan.rate),
+        'lockstep_timeout': float(plan.lockstep_timeout),
+        'startup_timeout': float(plan.startup_timeout),
+        'wait_for_agents': not gt,
+        'wait_for_recorder': True,
+        'd_cr': float(plan.d_cr),
+        'report': str(plan.run_dir / 'simulator.json'),
+        'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0),
+    }
     sim.update(plan.robot_model.get('simulator', {}))
-    rec = {'scenario': plan.scenario, 'robots': plan.robots, 'output': str(plan.record), 'dt': float(plan.dt),
-           'bag': plan.bag, 'use_sim_time': True}
+    rec = {
+        'scenario': plan.scenario,
+        'robots': plan.robots,
+        'output': str(plan.record),
+        'dt': float(plan.dt),
+        'bag': plan.bag,
+        'use_sim_time': True,
+    }
     files = {plan.run_dir / 'simulator.yaml': sim, plan.run_dir / 'recorder.yaml': rec}
     python = [sys.executable, '-m']
-    out = {'simulator': python + [f'{PACKAGE}.nodes.simulator', '--ros-args', '--params-file',
-                                  str(plan.run_dir / 'simulator.yaml')],
-           'recorder': python + [f'{PACKAGE}.nodes.recorder', '--ros-args', '--params-file',
-                                 str(plan.run_dir / 'recorder.yaml')]}
+    out = {
+        'simulator': python
+        + [f'{PACKAGE}.nodes.simulator', '--ros-args', '--params-file', str(plan.run_dir / 'simulator.yaml')],
+        'recorder': python
+        + [f'{PACKAGE}.nodes.recorder', '--ros-args', '--params-file', str(plan.run_dir / 'recorder.yaml')],
+    }
     if not gt:
-        agent = {'scenario': plan.scenario, 'robots': plan.robots, 'policy': plan.policy, 'mode': plan.mode,
-                 'control_rate': float(plan.rate), 'rate_check': plan.rate_check,
-                 'state_timeout': float(plan.state_timeout), 'parity_batch': plan.parity_batch, 'use_sim_time': True,
-                 'policy_runtime': plan.policy_runtime, **plan.link}
+        agent = {
+            'scenario': plan.scenario,
+            'robots': plan.robots,
+            'policy': plan.policy,
+            'mode': plan.mode,
+            'control_rate': float(plan.rate),
+            'rate_check': plan.rate_check,
+            'state_timeout': float(plan.state_timeout),
+            'parity_batch': plan.parity_batch,
+            'use_sim_time': True,
+            'policy_runtime': plan.policy_runtime,
+            **plan.link,
+        }
         agent['managed'] = bool(plan.managed)
         agent.update(plan.robot_model.get('agent', {}))
         files[plan.run_dir / 'agent.yaml'] = agent
         params = str(plan.run_dir / 'agent.yaml')
         if plan.managed:  # configures every agent, then activates them together, then exits 0
-            out['lifecycle_manager'] = python + [f'{PACKAGE}.nodes.lifecycle_manager', '--ros-args', '-p',
-                                                 f'robots:={plan.robots}', '-p',
-                                                 f'timeout:={float(plan.startup_timeout)}']
-        out.update(hosting.agent_commands(plan.robots, plan.agents_per_process, python, PACKAGE, params,
-                                          plan.run_dir))
+            out['lifecycle_manager'] = python + [
+                f'{PACKAGE}.nodes.lifecycle_manager',
+                '--ros-args',
+                '-p',
+                f'robots:={plan.robots}',
+                '-p',
+                f'timeout:={float(plan.startup_timeout)}',
+            ]
+        out.update(
+            hosting.agent_commands(
+                plan.robots, plan.agents_per_process, python, PACKAGE, params, plan.run_dir
+            )
+        )
     return out, files
 
 
@@ -80,8 +122,15 @@ def child_environment(domain_id: int) -> Dict[str, str]:
     """The environment of every node: a copy of ours (the ROS wheels' LD_LIBRARY_PATH and
     bootstrap flag travel together), the domain, localhost-only discovery, one thread each."""
     env = dict(os.environ)
-    env.update({'ROS_DOMAIN_ID': str(domain_id), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0', 'OMP_NUM_THREADS': '1',
-                'MKL_NUM_THREADS': '1'})
+    env.update(
+        {
+            'ROS_DOMAIN_ID': str(domain_id),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+            'PYTHONUNBUFFERED': '1',
+            'RCUTILS_COLORIZED_OUTPUT': '0',
+            'OMP_NUM_THREADS': '1',
+            'MKL_NUM_THREADS': '1',
+        }
+    )
     env.pop('ROS_LOCALHOST_ONLY', None)  # deprecated; the discovery range above replaces it
     return env

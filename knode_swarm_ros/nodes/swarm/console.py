@@ -1,4 +1,5 @@
 """The launcher's own console lines: ``[swarm   12.3 s] ...`` (time since the launcher started)."""
+
 from __future__ import annotations
 
 import time

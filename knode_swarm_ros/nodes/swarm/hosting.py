@@ -12,6 +12,7 @@ process holds about 330 MB (torch), so 100 robots need 2 to 8 processes, not 100
 all of them, with DDS discovery over the subnet and the UDP transport only (no shared memory
 across "hosts"), instead of localhost-only discovery.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,10 +21,20 @@ import os
 import re
 from typing import Dict, List, Optional, Sequence
 
-from ..common import ConfigError
+from knode_swarm_ros.logic.common import ConfigError
 
-__all__ = ['add_arguments', 'check_netns', 'place', 'resolve_agents_per_process', 'split', 'agent_commands', 'robots_of',
-           'is_agent_process', 'LONE_UP_TO', 'MAX_PROCESSES']
+__all__ = [
+    'add_arguments',
+    'check_netns',
+    'place',
+    'resolve_agents_per_process',
+    'split',
+    'agent_commands',
+    'robots_of',
+    'is_agent_process',
+    'LONE_UP_TO',
+    'MAX_PROCESSES',
+]
 
 LONE_UP_TO = 10
 MAX_PROCESSES = 8
@@ -32,13 +43,22 @@ _HOSTED_RE = re.compile(r'^agents_(\d+)_(\d+)$')
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``--agents-per-process``."""
-    parser.add_argument('--agents-per-process', type=int, default=0, metavar='K',
-                        help=f'robots whose agents share one process (1: one agent process per robot; 0, the '
-                             f'default: 1 up to {LONE_UP_TO} robots, else the robots split over min(cores, '
-                             f'{MAX_PROCESSES}) processes)')
-    parser.add_argument('--netns', metavar='NS0,NS1,..', help='run the nodes in these network namespaces (as '
-                        'root; the simulator and the recorder in the first, the agent processes round-robin), with '
-                        'subnet discovery over UDP: a multi-host swarm on one machine (docs/ros.md)')
+    parser.add_argument(
+        '--agents-per-process',
+        type=int,
+        default=0,
+        metavar='K',
+        help=f'robots whose agents share one process (1: one agent process per robot; 0, the '
+        f'default: 1 up to {LONE_UP_TO} robots, else the robots split over min(cores, '
+        f'{MAX_PROCESSES}) processes)',
+    )
+    parser.add_argument(
+        '--netns',
+        metavar='NS0,NS1,..',
+        help='run the nodes in these network namespaces (as '
+        'root; the simulator and the recorder in the first, the agent processes round-robin), with '
+        'subnet discovery over UDP: a multi-host swarm on one machine (docs/ros.md)',
+    )
 
 
 def resolve_agents_per_process(requested: int, robots: int, cores: Optional[int] = None) -> int:
@@ -60,13 +80,15 @@ def resolve_agents_per_process(requested: int, robots: int, cores: Optional[int]
 def split(ids: Sequence[int], per_process: int) -> List[List[int]]:
     """Consecutive groups of ``per_process`` ids (the last one the rest)."""
     ids = list(ids)
-    return [ids[i:i + per_process] for i in range(0, len(ids), per_process)]
+    return [ids[i : i + per_process] for i in range(0, len(ids), per_process)]
 
 
-def agent_commands(robots: int, per_process: int, python: List[str], package: str, params: str,
-                   run_dir) -> Dict[str, List[str]]:
+def agent_commands(
+    robots: int, per_process: int, python: List[str], package: str, params: str, run_dir
+) -> Dict[str, List[str]]:
     """The agents' command lines by process name: ``agent_<i>`` (K = 1) or ``agents_<a>_<b>``."""
     from .commands import _scalar  # the YAML scalar the ``-p`` flag expects
+
     out: Dict[str, List[str]] = {}
     for group in split(range(robots), per_process):
         if per_process == 1:
@@ -74,8 +96,16 @@ def agent_commands(robots: int, per_process: int, python: List[str], package: st
         else:
             name, node = f'agents_{group[0]}_{group[-1]}', 'agents'
             ids = f'ids:={group[0]}..{group[-1]}'
-        out[name] = python + [f'{package}.nodes.{node}', '--ros-args', '--params-file', params, '-p', ids,
-                              '-p', f'report:={_scalar(str(run_dir / f"{name}.json"))}']
+        out[name] = python + [
+            f'{package}.nodes.{node}',
+            '--ros-args',
+            '--params-file',
+            params,
+            '-p',
+            ids,
+            '-p',
+            f'report:={_scalar(str(run_dir / f"{name}.json"))}',
+        ]
     return out
 
 
@@ -110,7 +140,8 @@ def place(commands: Dict[str, List[str]], env: Dict[str, str], netns: Optional[s
     shared-memory transport would bypass the network under test)."""
     if not netns:
         return commands, env
-    from ..netns import wrap
+    from .netns import wrap
+
     spaces = [n.strip() for n in netns.split(',') if n.strip()]
     out, agents = {}, 0
     for name, cmd in commands.items():

@@ -3,6 +3,7 @@
 :func:`plan_run` turns the parsed arguments into a frozen :class:`Plan` (the arguments are not
 changed); :mod:`.commands` turns a plan into the nodes' command lines.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,13 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Optional
 
-from ..agent_link import link_parameters
-from ..common import ConfigError
+from knode_swarm_ros.logic.common import ConfigError
+from knode_swarm_ros.nodes.agent.link import link_parameters
+
 from . import hosting, robot_model
 
 __all__ = ['Plan', 'plan_run', 'available_memory_mb', 'DOMAIN_RANGE', 'MAX_ROBOTS', 'AGENT_MB', 'NODE_MB']
 
-DOMAIN_RANGE = (30, 101)   # valid ids with the default port mapping, away from the default 0
+DOMAIN_RANGE = (30, 101)  # valid ids with the default port mapping, away from the default 0
 #: The most robots any node accepts (the 'robots' parameter range of agent, simulator, recorder).
 MAX_ROBOTS = 10_000
 #: Private memory of one process, measured 2026-11-30 with the CPU build of torch (docs/DESIGN.md):
@@ -37,20 +39,20 @@ class Plan:
     mode: str
     dt: float
     d_cr: float
-    policy: Optional[str]            # resolved path; None with ground_truth
+    policy: Optional[str]  # resolved path; None with ground_truth
     record: Path
     figure: Optional[Path]
     run_dir: Path
     temporary_dir: bool
     domain_id: int
     policy_meta: Dict = field(default_factory=dict)
-    domain_claim: object = None      # held for the run (domains.DomainClaim) when the domain was drawn
+    domain_claim: object = None  # held for the run (domains.DomainClaim) when the domain was drawn
     agents_per_process: int = 1
     # the flags the nodes and the watcher need, as checked
     ground_truth: bool = False
     variant: str = ''
     seed: int = 0
-    init: str = ''                   # 'ABSOLUTE.npz:TRAJ' or ''
+    init: str = ''  # 'ABSOLUTE.npz:TRAJ' or ''
     rate: float = 20.0
     rate_check: str = 'warn'
     real_time_factor: float = 1.0
@@ -60,10 +62,10 @@ class Plan:
     timeout: float = 0.0
     parity_batch: bool = True
     policy_runtime: str = 'auto'
-    link: Dict[str, Any] = field(default_factory=dict)   # the agents' link_* parameters ({}: off)
+    link: Dict[str, Any] = field(default_factory=dict)  # the agents' link_* parameters ({}: off)
     robot_model: Dict[str, Dict] = field(default_factory=dict)  # --robot-model: simulator / agent parameters
     managed: bool = False
-    bag: str = ''                    # absolute path or ''
+    bag: str = ''  # absolute path or ''
     netns: Optional[str] = None
     quiet: bool = False
     on_agent_exit: str = 'continue'
@@ -102,41 +104,51 @@ def _check_memory(robots: int, per_process: int = 1) -> None:
     need = processes * AGENT_MB + 2 * NODE_MB
     have = available_memory_mb()
     if have is not None and need > have:
-        raise ConfigError(f'--robots {robots}: {processes} agent processes need about {need / 1024:.1f} GB '
-                          f'({AGENT_MB} MB each, measured with the CPU build of torch) but this machine has '
-                          f'{have / 1024:.1f} GB available; run fewer robots')
+        raise ConfigError(
+            f'--robots {robots}: {processes} agent processes need about {need / 1024:.1f} GB '
+            f'({AGENT_MB} MB each, measured with the CPU build of torch) but this machine has '
+            f'{have / 1024:.1f} GB available; run fewer robots'
+        )
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
     if args.steps < 0:
         raise ConfigError(f'--steps must be >= 0, got {args.steps}')
     if args.robots is not None and not 1 <= args.robots <= MAX_ROBOTS:
-        raise ConfigError(f'--robots must be in 1..{MAX_ROBOTS} (the nodes\' limit), got {args.robots}')
+        raise ConfigError(f"--robots must be in 1..{MAX_ROBOTS} (the nodes' limit), got {args.robots}")
     for name in ('rate', 'real_time_factor', 'state_timeout', 'lockstep_timeout', 'startup_timeout'):
         value = getattr(args, name)
         if not value > 0:
-            raise ConfigError(f"--{name.replace('_', '-')} must be > 0, got {value}")
+            raise ConfigError(f'--{name.replace("_", "-")} must be > 0, got {value}')
     if args.timeout < 0:
         raise ConfigError(f'--timeout must be >= 0, got {args.timeout}')
 
 
 def _policy(args: argparse.Namespace):
     """``(scenario, dt, d_cr, policy path or None, metadata)`` of the run."""
-    from ...core.scenarios import get_scenario
+    from knode_swarm_ros.core.scenarios import get_scenario
+
     scenario = args.scenario
     if args.ground_truth:
         if args.policy:
-            raise ConfigError('--policy and --ground-truth exclude each other (no agents run with --ground-truth)')
+            raise ConfigError(
+                '--policy and --ground-truth exclude each other (no agents run with --ground-truth)'
+            )
         scenario = scenario or 'flock2d'
-        from ...core.policy import DEFAULTS
+        from knode_swarm_ros.core.policy import DEFAULTS
+
         return scenario, get_scenario(scenario).dt, float(DEFAULTS[scenario]['d_cr']), None, {}
-    from ...core.policy_meta import PolicyError, shipped_policy_path
-    from ...core.policy_runtime import load_runtime  # the agents' backend: checks an ONNX twin up front
+    from knode_swarm_ros.core.policy_meta import PolicyError, shipped_policy_path
+    from knode_swarm_ros.core.policy_runtime import (
+        load_runtime,  # the agents' backend: checks an ONNX twin up front
+    )
+
     try:
         if args.policy:
             policy_path = args.policy
         elif args.mode == 'realtime':  # the shipped policy trained for --rate, if there is one
-            from ..control_period import shipped_policy_for_rate
+            from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
+
             policy_path = str(shipped_policy_for_rate(scenario or 'flock2d', args.rate)[0])
         else:
             policy_path = str(shipped_policy_path(scenario or 'flock2d'))
@@ -153,15 +165,17 @@ def _robots_and_init(args: argparse.Namespace, scenario: str):
     """``(robots, init)``: the swarm size and the resolved ``--init`` reference ('' without)."""
     robots, init = args.robots, ''
     if args.init:
-        from ...core.trajectory import TrajectoryError, load_trajectories, parse_trajectory_ref
+        from knode_swarm_ros.core.trajectory import TrajectoryError, load_trajectories, parse_trajectory_ref
+
         path, traj = parse_trajectory_ref(args.init)
         try:
             data = load_trajectories(path, scenario)
         except TrajectoryError as exc:
             raise ConfigError(f'--init: {exc}') from None
         if not 0 <= traj < data.states.shape[0]:
-            raise ConfigError(f'--init {args.init}: trajectory {traj} does not exist '
-                              f'({data.states.shape[0]} in the file)')
+            raise ConfigError(
+                f'--init {args.init}: trajectory {traj} does not exist ({data.states.shape[0]} in the file)'
+            )
         n = data.states.shape[2]
         if robots is not None and robots != n:
             raise ConfigError(f'--robots {robots} but --init {args.init} has {n} robots')
@@ -191,26 +205,34 @@ def plan_run(args: argparse.Namespace) -> Plan:
     per_process = hosting.resolve_agents_per_process(args.agents_per_process, robots)
     if args.managed and not args.ground_truth:
         if args.agents_per_process > 1:
-            raise ConfigError('--managed runs one lifecycle agent process per robot; it cannot be combined with '
-                              f'--agents-per-process {args.agents_per_process}')
+            raise ConfigError(
+                '--managed runs one lifecycle agent process per robot; it cannot be combined with '
+                f'--agents-per-process {args.agents_per_process}'
+            )
         per_process = 1
     if link and not args.ground_truth:  # each agent hears through its own link: no hosting (nodes/agents.py)
         if args.agents_per_process > 1:
-            raise ConfigError('--link-* (the link model) runs one agent process per robot; it cannot be combined '
-                              f'with --agents-per-process {args.agents_per_process}')
+            raise ConfigError(
+                '--link-* (the link model) runs one agent process per robot; it cannot be combined '
+                f'with --agents-per-process {args.agents_per_process}'
+            )
         per_process = 1
     robot_params = robot_model.robot_model_parameters(args, scenario, per_process)
     hosting.check_netns(args.netns)
     if not args.ground_truth:
         _check_memory(robots, per_process)
     if args.variant:
-        from ...core import groundtruth
+        from knode_swarm_ros.core import groundtruth
+
         if args.variant not in groundtruth.presets(scenario):
-            raise ConfigError(f'--variant {args.variant!r}: known {scenario} variants are '
-                              f"{', '.join(groundtruth.presets(scenario))}")
+            raise ConfigError(
+                f'--variant {args.variant!r}: known {scenario} variants are '
+                f'{", ".join(groundtruth.presets(scenario))}'
+            )
     claim = None
     if args.domain_id is None:  # a free one: another swarm on this machine may hold one
-        from ..domains import claim_domain
+        from .domains import claim_domain
+
         try:
             claim = claim_domain(range(DOMAIN_RANGE[0], DOMAIN_RANGE[1] + 1))
         except RuntimeError as exc:
@@ -218,7 +240,9 @@ def plan_run(args: argparse.Namespace) -> Plan:
     domain = args.domain_id if claim is None else claim.domain_id
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain-id must be in 0..232, got {domain}')
-    figure = None if args.no_figure else Path(args.figure).resolve() if args.figure else record.with_suffix('.png')
+    figure = (
+        None if args.no_figure else Path(args.figure).resolve() if args.figure else record.with_suffix('.png')
+    )
     if figure is not None:
         _check_output_folder('--figure', str(args.figure or figure), figure.parent)
     if args.log_dir:
@@ -226,14 +250,41 @@ def plan_run(args: argparse.Namespace) -> Plan:
         run_dir.mkdir(parents=True, exist_ok=True)
     else:
         run_dir, temporary = Path(tempfile.mkdtemp(prefix='knode_swarm_')), True
-    return Plan(scenario=scenario, robots=robots, steps=args.steps, mode=args.mode, dt=dt, d_cr=d_cr,
-                policy=policy_path, record=record, figure=figure, run_dir=run_dir, temporary_dir=temporary,
-                domain_id=domain, policy_meta=meta, domain_claim=claim, agents_per_process=per_process,
-                ground_truth=bool(args.ground_truth), variant=args.variant, seed=int(args.seed), init=init,
-                rate=float(args.rate), rate_check=args.rate_check, real_time_factor=float(args.real_time_factor),
-                state_timeout=float(args.state_timeout), lockstep_timeout=float(args.lockstep_timeout),
-                startup_timeout=float(args.startup_timeout), timeout=float(args.timeout),
-                parity_batch=not args.no_parity_batch, policy_runtime=args.policy_runtime, link=link,
-                robot_model=robot_params,
-                managed=bool(args.managed), bag=os.path.abspath(args.bag) if args.bag else '', netns=args.netns,
-                quiet=bool(args.quiet), on_agent_exit=args.on_agent_exit, keep_logs=bool(args.keep_logs))
+    return Plan(
+        scenario=scenario,
+        robots=robots,
+        steps=args.steps,
+        mode=args.mode,
+        dt=dt,
+        d_cr=d_cr,
+        policy=policy_path,
+        record=record,
+        figure=figure,
+        run_dir=run_dir,
+        temporary_dir=temporary,
+        domain_id=domain,
+        policy_meta=meta,
+        domain_claim=claim,
+        agents_per_process=per_process,
+        ground_truth=bool(args.ground_truth),
+        variant=args.variant,
+        seed=int(args.seed),
+        init=init,
+        rate=float(args.rate),
+        rate_check=args.rate_check,
+        real_time_factor=float(args.real_time_factor),
+        state_timeout=float(args.state_timeout),
+        lockstep_timeout=float(args.lockstep_timeout),
+        startup_timeout=float(args.startup_timeout),
+        timeout=float(args.timeout),
+        parity_batch=not args.no_parity_batch,
+        policy_runtime=args.policy_runtime,
+        link=link,
+        robot_model=robot_params,
+        managed=bool(args.managed),
+        bag=os.path.abspath(args.bag) if args.bag else '',
+        netns=args.netns,
+        quiet=bool(args.quiet),
+        on_agent_exit=args.on_agent_exit,
+        keep_logs=bool(args.keep_logs),
+    )

@@ -1,5 +1,6 @@
 """The launcher's child processes: start one node, pump every output into its log (and echo
 problems), stop them (SIGTERM, then SIGKILL). No rclpy here."""
+
 from __future__ import annotations
 
 import os
@@ -27,6 +28,7 @@ class Interrupted(Exception):
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         import ctypes
+
         ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except OSError:
         pass
@@ -44,7 +46,7 @@ class Child:
     buffer: bytes = b''
     tail: List[str] = field(default_factory=list)
     reported: bool = False
-    marker: str = ''      # a log line fragment that says the process is past its checks
+    marker: str = ''  # a log line fragment that says the process is past its checks
     marked: bool = False
 
     @property
@@ -77,14 +79,26 @@ class Child:
 
 
 #: What each node logs once its parameters, files and policy have passed its checks.
-_STARTED = {'simulator': ' robots, ', 'recorder': ': recording ', 'agent': 'publishing ', 'agents': ' hosted) of '}
+_STARTED = {
+    'simulator': ' robots, ',
+    'recorder': ': recording ',
+    'agent': 'publishing ',
+    'agents': ' hosted) of ',
+}
 
 
 def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Path, echo: str) -> Child:
     log_path = run_dir / f'{name}.log'
-    proc = subprocess.Popen(list(cmd), env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=_die_with_parent,
-                            cwd=str(run_dir))
+    proc = subprocess.Popen(
+        list(cmd),
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        preexec_fn=_die_with_parent,
+        cwd=str(run_dir),
+    )
     os.set_blocking(proc.stdout.fileno(), False)
     return Child(name, proc, log_path, open(log_path, 'wb'), echo, marker=_STARTED[name.split('_')[0]])
 

@@ -4,6 +4,7 @@ For a flock2d run of a learnt policy the ground-truth swarm from the recording's
 (:func:`knode_swarm_ros.core.groundtruth.follow`) is summarised and drawn beside it, so that
 one sees at a glance how close the learnt swarm comes to the one it learnt from (issue 13).
 """
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,10 @@ __all__ = ['summarise', 'write_figure']
 def summarise(plan) -> Optional[Dict]:
     """Print the recording's metrics (and the simulator's figures); returns them."""
     import numpy as np
-    from ...core.trajectory import TrajectoryError, load_trajectories
-    from ..recorder_logic import swarm_metrics
+
+    from knode_swarm_ros.core.trajectory import TrajectoryError, load_trajectories
+    from knode_swarm_ros.logic.recorder import swarm_metrics
+
     try:
         data = load_trajectories(plan.record)
     except TrajectoryError as exc:
@@ -29,17 +32,32 @@ def summarise(plan) -> Optional[Dict]:
     metrics = np.array([swarm_metrics(f, data.scenario) for f in states])
     tail = max(1, len(states) // 10)
     last = metrics[-tail:].mean(axis=0)
-    info = {'frames': int(states.shape[0]), 'robots': int(states.shape[1]), 'dt': float(data.dt),
-            'avd_start': float(metrics[0, 0]), 'avd_end': float(metrics[-1, 0]), 'amd_start': float(metrics[0, 1]),
-            'amd_end': float(metrics[-1, 1]), 'avd_last10pct': float(last[0]), 'amd_last10pct': float(last[1]),
-            'incomplete_frames': data.meta.get('incomplete_frames'), 'interrupted': data.meta.get('interrupted')}
+    info = {
+        'frames': int(states.shape[0]),
+        'robots': int(states.shape[1]),
+        'dt': float(data.dt),
+        'avd_start': float(metrics[0, 0]),
+        'avd_end': float(metrics[-1, 0]),
+        'amd_start': float(metrics[0, 1]),
+        'amd_end': float(metrics[-1, 1]),
+        'avd_last10pct': float(last[0]),
+        'amd_last10pct': float(last[1]),
+        'incomplete_frames': data.meta.get('incomplete_frames'),
+        'interrupted': data.meta.get('interrupted'),
+    }
     which = 'velocity' if data.scenario == 'flock2d' else 'heading'
-    _say(f'recorded {plan.record}: {info["frames"]} frames x {info["robots"]} robots, dt {data.dt:g} s'
-         f'{" (interrupted)" if info["interrupted"] else ""}')
-    _say(f'avd ({which} difference): {info["avd_start"]:.4f} at start, {info["avd_end"]:.4f} at the end '
-         f'(mean of the last 10%: {info["avd_last10pct"]:.4f})')
-    _say(f'amd (nearest-neighbour distance): {info["amd_start"]:.4f} at start, {info["amd_end"]:.4f} at the end '
-         f'(mean of the last 10%: {info["amd_last10pct"]:.4f})')
+    _say(
+        f'recorded {plan.record}: {info["frames"]} frames x {info["robots"]} robots, dt {data.dt:g} s'
+        f'{" (interrupted)" if info["interrupted"] else ""}'
+    )
+    _say(
+        f'avd ({which} difference): {info["avd_start"]:.4f} at start, {info["avd_end"]:.4f} at the end '
+        f'(mean of the last 10%: {info["avd_last10pct"]:.4f})'
+    )
+    _say(
+        f'amd (nearest-neighbour distance): {info["amd_start"]:.4f} at start, {info["amd_end"]:.4f} at the end '
+        f'(mean of the last 10%: {info["amd_last10pct"]:.4f})'
+    )
     report = plan.run_dir / 'simulator.json'
     if report.is_file():
         try:
@@ -48,22 +66,41 @@ def summarise(plan) -> Optional[Dict]:
             sim = {}
         if sim.get('steps_per_s') is not None:
             lat = sim.get('latency_ms') or {}
-            extra = (f'; state-to-command latency p50 {lat["p50"]:.2f} ms, p99 {lat["p99"]:.2f} ms'
-                     if lat.get('p50') is not None else '')
-            _say(f'simulator: {sim.get("steps_run")} steps in {sim.get("run_s", 0):.2f} s '
-                 f'({sim["steps_per_s"]:.1f} steps/s) after {sim.get("startup_s", 0):.1f} s of startup{extra}')
+            extra = (
+                f'; state-to-command latency p50 {lat["p50"]:.2f} ms, p99 {lat["p99"]:.2f} ms'
+                if lat.get('p50') is not None
+                else ''
+            )
+            _say(
+                f'simulator: {sim.get("steps_run")} steps in {sim.get("run_s", 0):.2f} s '
+                f'({sim["steps_per_s"]:.1f} steps/s) after {sim.get("startup_s", 0):.1f} s of startup{extra}'
+            )
         info['simulator'] = sim
     truth, truth_metrics = _ground_truth(plan, states, data, swarm_metrics)
     if truth is not None:
         tl = truth_metrics[-tail:].mean(axis=0)
-        info['ground_truth'] = {'variant': _variant(plan), 'avd_end': float(truth_metrics[-1, 0]),
-                                'amd_end': float(truth_metrics[-1, 1]), 'avd_last10pct': float(tl[0]),
-                                'amd_last10pct': float(tl[1])}
-        _say(f'ground truth from the same start ({_variant(plan)} Tanner law): avd {tl[0]:.4f}, amd {tl[1]:.4f} '
-             f'(mean of the last 10%; the learnt swarm: avd {last[0]:.4f}, amd {last[1]:.4f})')
+        info['ground_truth'] = {
+            'variant': _variant(plan),
+            'avd_end': float(truth_metrics[-1, 0]),
+            'amd_end': float(truth_metrics[-1, 1]),
+            'avd_last10pct': float(tl[0]),
+            'amd_last10pct': float(tl[1]),
+        }
+        _say(
+            f'ground truth from the same start ({_variant(plan)} Tanner law): avd {tl[0]:.4f}, amd {tl[1]:.4f} '
+            f'(mean of the last 10%; the learnt swarm: avd {last[0]:.4f}, amd {last[1]:.4f})'
+        )
     if plan.figure is not None:
-        write_figure(plan.figure, states, data.dt, data.scenario, metrics,
-                     f'{data.scenario}, {states.shape[1]} robots, {plan.mode}', truth, truth_metrics)
+        write_figure(
+            plan.figure,
+            states,
+            data.dt,
+            data.scenario,
+            metrics,
+            f'{data.scenario}, {states.shape[1]} robots, {plan.mode}',
+            truth,
+            truth_metrics,
+        )
     return info
 
 
@@ -75,7 +112,9 @@ def _ground_truth(plan, states, data, swarm_metrics):
     """The ground-truth swarm ``[T, n, d]`` from the recording's first frame and its (avd, amd)
     per frame, or (None, None): boids3d, a run that is itself the ground truth, a bad start."""
     import numpy as np
-    from ...core.groundtruth import follow
+
+    from knode_swarm_ros.core.groundtruth import follow
+
     if data.scenario != 'flock2d' or getattr(plan, 'ground_truth', False):
         return None, None
     try:
@@ -98,19 +137,22 @@ def _draw_trajectories(ax, states, scenario: str, title: str) -> None:
     ax.set_title(title + (' (x-y projection)' if scenario == 'boids3d' else ''))
 
 
-def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: str,
-                 truth=None, truth_metrics=None) -> bool:
+def write_figure(
+    path: Path, states, dt: float, scenario: str, metrics, title: str, truth=None, truth_metrics=None
+) -> bool:
     """Trajectories and avd/amd over time as a PNG (matplotlib is imported only here); with
     ``truth [T, n, d]`` and its ``truth_metrics [T, 2]`` the ground-truth swarm from the same
     start gets its own trajectory panel and its curves beside the run's."""
     try:
         import matplotlib
+
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
     except ImportError:
         _say('matplotlib is not installed: no figure (pip install matplotlib)')
         return False
     import numpy as np
+
     t = np.arange(states.shape[0]) * dt
     panels = 3 if truth is None else 4
     fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 4.5))
@@ -119,7 +161,7 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
         _draw_trajectories(axes[1], truth, scenario, 'ground truth, same start')
         both = np.concatenate([states[..., :2].reshape(-1, 2), truth[..., :2].reshape(-1, 2)])
         both = both[np.all(np.isfinite(both), axis=1)]
-        if len(both):                   # one scale for both swarms, so that they compare by eye
+        if len(both):  # one scale for both swarms, so that they compare by eye
             lo, hi = both.min(axis=0), both.max(axis=0)
             pad = 0.05 * max(float((hi - lo).max()), 1e-6)
             for ax in axes[:2]:
@@ -127,8 +169,10 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
                 ax.set_xlim(lo[0] - pad, hi[0] + pad)
                 ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax_avd, ax_amd = axes[-2], axes[-1]
-    for ax, col, name in ((ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference'),
-                          (ax_amd, 1, 'amd: nearest-neighbour distance')):
+    for ax, col, name in (
+        (ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference'),
+        (ax_amd, 1, 'amd: nearest-neighbour distance'),
+    ):
         ax.plot(t, metrics[:, col], label='learnt' if truth is not None else None)
         if truth is not None:
             ax.plot(np.arange(truth.shape[0]) * dt, truth_metrics[:, col], '--', label='ground truth')
@@ -136,7 +180,7 @@ def write_figure(path: Path, states, dt: float, scenario: str, metrics, title: s
         ax.set_xlabel('t [s]')
         ax.set_title(name)
     if truth is not None:
-        ax_avd.set_yscale('log')        # the flocked state is orders of magnitude below the start
+        ax_avd.set_yscale('log')  # the flocked state is orders of magnitude below the start
     fig.suptitle(title)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -8,6 +8,7 @@ the run and that no live process holds a lock on (the rule ``fastdds shm clean``
 to the ports a killed process leaves without a lock file), so nothing of another user's live
 processes is touched.
 """
+
 from __future__ import annotations
 
 import fcntl
@@ -81,7 +82,9 @@ def shm_held_by(pid: int) -> set:
         lines = Path('/proc/locks').read_text().splitlines()
     except OSError:
         return set()
-    held = set()  # (major, minor, inode) as /proc/locks writes them: "1: FLOCK ADVISORY WRITE pid 00:1a:123 0 EOF"
+    held = (
+        set()
+    )  # (major, minor, inode) as /proc/locks writes them: "1: FLOCK ADVISORY WRITE pid 00:1a:123 0 EOF"
     for line in lines:
         fields = line.replace('->', ' ').split()
         if len(fields) >= 6 and fields[4] == str(pid) and fields[5].count(':') == 2:

@@ -2,6 +2,7 @@
 
 Signals only set a flag (see ``on_signal``); :meth:`.processes.Children.pump` raises it.
 """
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,8 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
-from ..common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
+from knode_swarm_ros.logic.common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
+
 from . import hosting
 from .commands import child_environment, node_commands
 from .console import say as _say
@@ -46,16 +48,24 @@ def run(plan: Plan) -> int:
     t0 = time.monotonic()
     try:
         try:
-            _say(f'{plan.robots} robots, {plan.scenario}, {plan.mode}, {plan.steps or "unlimited"} steps, '
-                 f'ROS_DOMAIN_ID={plan.domain_id}, logs in {plan.run_dir}')
+            _say(
+                f'{plan.robots} robots, {plan.scenario}, {plan.mode}, {plan.steps or "unlimited"} steps, '
+                f'ROS_DOMAIN_ID={plan.domain_id}, logs in {plan.run_dir}'
+            )
             if plan.ground_truth:
                 _say(f'ground truth ({plan.variant or "paper"}): the simulator drives the robots, no agents')
             else:
-                _say(f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
-                     f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})')
+                _say(
+                    f'policy {plan.policy} (k={plan.policy_meta.get("k")}, d_cr={plan.policy_meta.get("d_cr")}, '
+                    f'tau={plan.policy_meta.get("tau")}, dt={plan.policy_meta.get("dt")})'
+                )
                 if plan.mode == 'realtime':
-                    from ..control_period import check_control_period
-                    _say(check_control_period(plan.rate, plan.dt).describe() or f'control period = policy dt ({plan.dt:g} s)')
+                    from knode_swarm_ros.logic.agent.control_period import check_control_period
+
+                    _say(
+                        check_control_period(plan.rate, plan.dt).describe()
+                        or f'control period = policy dt ({plan.dt:g} s)'
+                    )
             failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
             (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
@@ -63,10 +73,16 @@ def run(plan: Plan) -> int:
                 code = failed
             else:
                 agents = [n for n in pids if hosting.is_agent_process(n)]
-                _say(f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
-                     + (f', {len(agents)} agent processes for {plan.robots} robots (pids {pids[agents[0]]}..'
-                        f'{pids[agents[-1]]})' if agents else '')
-                     + ': waiting until every agent has heard every robot')
+                _say(
+                    f'started simulator (pid {pids["simulator"]}), recorder (pid {pids["recorder"]})'
+                    + (
+                        f', {len(agents)} agent processes for {plan.robots} robots (pids {pids[agents[0]]}..'
+                        f'{pids[agents[-1]]})'
+                        if agents
+                        else ''
+                    )
+                    + ': waiting until every agent has heard every robot'
+                )
                 code = _supervise(plan, children, lost_agents, t0)
         except Interrupted:
             name = signal.Signals(stop_reason['signal']).name
@@ -93,8 +109,10 @@ def run(plan: Plan) -> int:
         if _file_identity(plan.record) != record_before:
             summarise(plan)
         elif record_before is not None:
-            _say(f'no recording was written in this run: {plan.record} is an earlier file, left as it was '
-                 '(not summarised)')
+            _say(
+                f'no recording was written in this run: {plan.record} is an earlier file, left as it was '
+                '(not summarised)'
+            )
         else:
             _say('no recording was written in this run')
     if lost_agents and code == EXIT_OK:
@@ -114,8 +132,9 @@ def _file_identity(path: Path):
     return (st.st_ino, st.st_size, st.st_mtime_ns)
 
 
-def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children,
-                     t0: float) -> Optional[int]:
+def _start_in_stages(
+    plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children, t0: float
+) -> Optional[int]:
     """Start the simulator and the recorder, then, once both are past their checks (their logs
     say so), the agents: a refused parameter or file stops the run before hundreds of agents
     load torch. (An agent that refuses its configuration stops the run in _supervise; agents are
@@ -137,12 +156,16 @@ def _start_in_stages(plan: Plan, commands: Dict[str, List[str]], env: Dict[str, 
                     c.reported = True
                     last = [line for line in c.tail if line.strip()][-3:]
                     detail = (' -- last output: ' + ' | '.join(last)) if last else ''
-                    _say(f'the {c.name} (pid {c.pid}) {c.how_it_ended()} while starting{detail}: nothing else '
-                         'is started')
+                    _say(
+                        f'the {c.name} (pid {c.pid}) {c.how_it_ended()} while starting{detail}: nothing else '
+                        'is started'
+                    )
                     return EXIT_CONFIG if c.proc.returncode == EXIT_CONFIG else EXIT_FAILURE
             if time.monotonic() - t0 > plan.startup_timeout:
                 late = [c.name for c in waiting if not c.marked]
-                _say(f'{", ".join(late)} not started after --startup-timeout {plan.startup_timeout:g} s: stopping')
+                _say(
+                    f'{", ".join(late)} not started after --startup-timeout {plan.startup_timeout:g} s: stopping'
+                )
                 return EXIT_FAILURE
     return None
 
@@ -177,17 +200,21 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             if hosting.is_agent_process(c.name):
                 held = hosting.robots_of(c.name)
                 _say(f'{c.name} (pid {c.pid}) {why}{detail}')
-                lost_agents.append(f'{c.name} (pid {c.pid}) {why}'
-                                   + (f', hosting robots {held}' if c.name.startswith('agents_') else ''))
+                lost_agents.append(
+                    f'{c.name} (pid {c.pid}) {why}'
+                    + (f', hosting robots {held}' if c.name.startswith('agents_') else '')
+                )
                 if rc == EXIT_CONFIG:
                     _say('an agent refused its configuration: stopping the run')
                     return EXIT_CONFIG
                 if plan.on_agent_exit == 'stop':
                     _say('--on-agent-exit stop: stopping the run')
                     return EXIT_FAILURE
-                _say(f'{c.name} is gone: the other agents go on; the simulator holds robot'
-                     f'{"s" if len(held) > 1 else ""} {", ".join(map(str, held))} at '
-                     f'{"their" if len(held) > 1 else "its"} last command')
+                _say(
+                    f'{c.name} is gone: the other agents go on; the simulator holds robot'
+                    f'{"s" if len(held) > 1 else ""} {", ".join(map(str, held))} at '
+                    f'{"their" if len(held) > 1 else "its"} last command'
+                )
             else:
                 _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
                 return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE

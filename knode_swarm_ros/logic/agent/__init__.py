@@ -1,0 +1,1 @@
+"""One robot's controller without ROS: hearing, neighbour matrices, commands, timing."""

@@ -1,0 +1,373 @@
+"""The simulated swarm, without ROS: state, commands, integration, lockstep bookkeeping.
+
+:class:`SwarmSim` holds the states ``[n, d]`` of robots ``0 .. n-1`` and the newest command of
+each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step` (docs/DESIGN.md,
+"Rollout semantics"), or, in ground-truth mode, with the Tanner / boids stepper of
+:mod:`knode_swarm_ros.core.groundtruth`, which ignores commands; or, with a robot model
+(``robot_model: unicycle``, :mod:`.simulator_robot`), as differential-drive bases taking (v, omega).
+
+* lockstep: a step advances once every live robot has answered the current step (a command
+  stamped with the current state's stamp). A robot still silent ``lockstep_timeout`` wall
+  seconds after the step was published is declared lost: it is stopped (below) and not waited
+  for, until a command for the current step comes from it again (it rejoins).
+* realtime: each step uses each robot's newest command (by stamp); a robot whose newest command
+  is older than ``command_timeout`` seconds of simulated time (or that never sent one) is stopped.
+
+Stopping follows docs/DESIGN.md: a velocity-commanded robot gets zero velocity, an acceleration-
+commanded one brakes to rest at the saturated deceleration
+(:func:`knode_swarm_ros.core.saturation.stop_command` with ``stop_limit``); it never coasts.
+
+It also keeps the figures the benchmark reports: state-to-command latency (wall seconds from
+publishing a state to receiving the first command stamped with it) and command counters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from knode_swarm_ros.core.rollout import zoh_step
+from knode_swarm_ros.core.saturation import stop_command
+from knode_swarm_ros.core.scenarios import Scenario, get_scenario
+from knode_swarm_ros.logic.common import MODES, ConfigError, percentiles, stamp_ns, step_of
+
+__all__ = [
+    'SwarmSim',
+    'initial_state',
+    'initial_state_from_file',
+    'make_ground_truth',
+    'ground_truth_variants',
+    'COMMAND_OUTCOMES',
+]
+
+#: What :meth:`SwarmSim.offer` can answer (each has a counter).
+COMMAND_OUTCOMES = (
+    'accepted',
+    'unknown_id',
+    'bad_size',
+    'non_finite',
+    'stale',
+    'future',
+    'rejoined',
+    'malformed',
+)
+
+
+def ground_truth_variants(scenario: str) -> Tuple[str, ...]:
+    """Variants (flock2d) or presets (boids3d) of the ground truth, the paper's first."""
+    from knode_swarm_ros.core import groundtruth
+
+    return tuple(groundtruth.presets(scenario))
+
+
+def _check_variant(scenario: str, variant: str) -> str:
+    names = ground_truth_variants(scenario)
+    variant = variant or names[0]
+    if variant not in names:
+        raise ConfigError(
+            f"parameter 'variant' = {variant!r} is not a {scenario} ground-truth variant; "
+            f'known: {", ".join(names)}'
+        )
+    return variant
+
+
+def initial_state(scenario: str, robots: int, seed: int, variant: str = ''):
+    """The training density's initial condition for any number of robots.
+
+    Returns (``z0 [robots, d]``, the ground-truth swarm in that state). Equals frame 0 of
+    ``core.groundtruth.simulate(scenario, 1, robots, 1, seed, variant)``: flock2d draws
+    Tanner initial states; boids3d spawns boids and discards the first frames as the
+    dataset generator does.
+    """
+    from knode_swarm_ros.core.groundtruth import (
+        BOIDS_PRESETS,
+        DISCARD_FRAMES,
+        BoidsSwarm,
+        TannerSwarm,
+        tanner,
+    )
+
+    variant = _check_variant(scenario, variant)
+    if robots < 1:
+        raise ConfigError(f"parameter 'robots' must be >= 1, got {robots}")
+    rng = np.random.default_rng(seed)
+    if scenario == 'flock2d':
+        swarm = TannerSwarm(tanner.initial_states(rng, 1, robots, variant), variant)
+    else:
+        swarm = BoidsSwarm.spawn(rng, 1, robots, BOIDS_PRESETS[variant])
+        for _ in range(DISCARD_FRAMES):
+            swarm.step()
+    return swarm.observe()[0], swarm
+
+
+def initial_state_from_file(ref: str, scenario: str, robots: int = 0) -> Tuple[np.ndarray, str, int]:
+    """Frame 0 of trajectory ``TRAJ`` of ``FILE.npz[:TRAJ]`` -> (``z0 [n, d]``, path, traj).
+
+    Raises:
+        ConfigError: unreadable file, wrong scenario, no such trajectory, or ``robots`` > 0 and
+            different from the file's n.
+    """
+    from knode_swarm_ros.core.trajectory import TrajectoryError, load_trajectories, parse_trajectory_ref
+
+    path, traj = parse_trajectory_ref(ref)
+    try:
+        data = load_trajectories(path, scenario)
+    except TrajectoryError as exc:
+        raise ConfigError(f"parameter 'init': {exc}") from None
+    count = data.states.shape[0]
+    if not 0 <= traj < count:
+        raise ConfigError(
+            f"parameter 'init' = {ref!r}: trajectory {traj} does not exist ({path} holds "
+            f'{count}, indices 0..{count - 1})'
+        )
+    z0 = np.array(data.states[traj, 0], dtype=np.float64)
+    if robots and robots != z0.shape[0]:
+        raise ConfigError(
+            f"parameter 'robots' = {robots} but trajectory {traj} of {path} has {z0.shape[0]} robots"
+        )
+    return z0, path, traj
+
+
+def make_ground_truth(scenario: str, z0: np.ndarray, variant: str = '', dt: Optional[float] = None):
+    """A ground-truth stepper (``step() -> [1, n, d]``) starting from ``z0 [n, d]``.
+
+    boids3d states carry no speed: the boids start at the spawn speed (see BoidsSwarm).
+    """
+    from knode_swarm_ros.core.groundtruth import BOIDS_PRESETS, BoidsSwarm, TannerSwarm
+
+    variant = _check_variant(scenario, variant)
+    spec = get_scenario(scenario)
+    if dt is not None and not np.isclose(dt, spec.dt, rtol=1e-9, atol=0):
+        raise ConfigError(f"parameter 'dt' = {dt:g}: the {scenario} ground truth steps at dt = {spec.dt:g}")
+    if scenario == 'flock2d':
+        return TannerSwarm(np.asarray(z0)[None], variant)
+    return BoidsSwarm.from_observation(np.asarray(z0)[None], BOIDS_PRESETS[variant])
+
+
+@dataclass
+class _Counters:
+    accepted: int = 0
+    unknown_id: int = 0
+    bad_size: int = 0
+    non_finite: int = 0
+    stale: int = 0
+    future: int = 0
+    rejoined: int = 0
+    malformed: int = 0  # undecodable command messages (:meth:`SwarmSim.malformed`)
+    commanded: int = 0  # distinct (robot, step) commands received (a re-send counts once; recent 64 steps)
+    zeroed: int = 0  # robot-steps stopped (lost in lockstep, command too old in realtime)
+    lost_events: int = 0
+
+
+class SwarmSim:
+    """n robots, their states and commands (see the module doc).
+
+    Args:
+        scenario: scenario name.
+        z0: ``[n, d]`` initial states of robots 0 .. n-1.
+        dt: seconds per step.
+        mode: ``lockstep`` or ``realtime``.
+        command_timeout: realtime: commands older than this (simulated seconds) count as zero.
+        ground_truth: optional stepper (``step() -> [1, n, d]``) that replaces the commands.
+        stop_limit: per-axis deceleration limit of a braking stop (None or 0: rest in one step).
+        robot: None (the scenario's point masses) or a flock2d robot model built from ``z0``
+            (:class:`knode_swarm_ros.core.unicycle.UnicycleRobots`): commands are its (v, omega), a
+            stop commands (0, 0) (the base brakes within its limits), the states are its
+            ``states()``.
+    """
+
+    def __init__(
+        self,
+        scenario: str,
+        z0,
+        dt: float,
+        mode: str = 'lockstep',
+        command_timeout: float = 0.5,
+        ground_truth=None,
+        stop_limit: Optional[float] = None,
+        robot=None,
+    ):
+        self.spec: Scenario = get_scenario(scenario)
+        z0 = np.array(z0, dtype=np.float64)
+        if z0.ndim != 2 or z0.shape[1] != self.spec.state_dim or z0.shape[0] < 1:
+            raise ConfigError(f'initial state must be [n, {self.spec.state_dim}], got {z0.shape}')
+        if not np.all(np.isfinite(z0)):
+            raise ConfigError('initial state holds non-finite values')
+        if mode not in MODES:
+            raise ConfigError(f"parameter 'mode' = {mode!r} is not one of {', '.join(MODES)}")
+        if not dt > 0:
+            raise ConfigError(f"parameter 'dt' must be > 0, got {dt}")
+        self.n = z0.shape[0]
+        self.dt = float(dt)
+        self.mode = mode
+        self.command_timeout_steps = float(command_timeout) / self.dt
+        self.ground_truth = ground_truth
+        if stop_limit is not None and not (np.isfinite(stop_limit) and stop_limit >= 0):
+            raise ConfigError(f"parameter 'command_limit' must be >= 0, got {stop_limit}")
+        self.stop_limit = float(stop_limit) if stop_limit else None
+        if robot is not None and (ground_truth is not None or self.spec.name != 'flock2d'):
+            raise ConfigError(
+                "parameter 'robot_model': a unicycle robot model needs flock2d and no ground truth"
+            )
+        self.robot = robot
+        self.step = 0
+        self.states = z0 if robot is None else robot.states()
+        m = self.spec.command_dim
+        self.commands = np.zeros((self.n, m))  # newest command of each robot
+        self.command_step = np.full(self.n, -1, dtype=np.int64)  # its stamp's step (-1: none yet)
+        self.applied = np.zeros((self.n, m))  # what the last step applied
+        self.answered = set()  # lockstep: robots that answered self.step
+        self.lost = set()  # lockstep: not waited for
+        self._settled = 0  # lockstep: robots answered or lost (|answered | lost|)
+        self.counters = _Counters()
+        self.latency: List[float] = []  # wall seconds, state published -> first command
+        self._published: Dict[int, float] = {}  # step -> wall time it was published
+        self._latency_seen = set()  # (robot, step)
+        self._commanded: Dict[int, set] = {}  # step -> robots whose command for it arrived (recent steps)
+        self.step_wall = 0.0  # wall time self.step was first published
+
+    # --- time ----------------------------------------------------------------------
+    @property
+    def stamp_ns(self) -> int:
+        """Stamp of the current state."""
+        return stamp_ns(self.step, self.dt)
+
+    def note_published(self, wall: float) -> None:
+        """The current state has been published at ``wall`` (first time only counts)."""
+        if self.step not in self._published:
+            self._published[self.step] = wall
+            self.step_wall = wall
+            if len(self._published) > 512:
+                for s in sorted(self._published)[:256]:
+                    del self._published[s]
+
+    # --- commands ------------------------------------------------------------------
+    def offer(self, robot: int, ns: int, u, wall: float = 0.0) -> str:
+        """A command from ``robot`` stamped ``ns``; returns one of :data:`COMMAND_OUTCOMES`."""
+        c = self.counters
+        if not 0 <= robot < self.n:
+            c.unknown_id += 1
+            return 'unknown_id'
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (self.spec.command_dim,):
+            c.bad_size += 1
+            return 'bad_size'
+        if not np.all(np.isfinite(u)):
+            c.non_finite += 1
+            return 'non_finite'
+        s = step_of(ns, self.dt)
+        if s > self.step:
+            c.future += 1
+            return 'future'
+        seen = self._commanded.setdefault(s, set())
+        if robot not in seen:
+            seen.add(robot)
+            c.commanded += 1
+            if len(self._commanded) > 64:
+                del self._commanded[min(self._commanded)]
+        if (robot, s) not in self._latency_seen and s in self._published:
+            self._latency_seen.add((robot, s))
+            self.latency.append(wall - self._published[s])
+            if len(self._latency_seen) > 100_000:
+                self._latency_seen.clear()
+        if self.mode == 'lockstep':
+            if s < self.step or robot in self.answered:
+                c.stale += 1
+                return 'stale'
+            self.commands[robot] = u
+            self.command_step[robot] = s
+            self.answered.add(robot)
+            if robot in self.lost:  # (settled already, as lost)
+                self.lost.discard(robot)
+                c.rejoined += 1
+                return 'rejoined'
+            self._settled += 1
+            c.accepted += 1
+            return 'accepted'
+        if s < self.command_step[robot]:  # an older command overtaken by a newer one
+            c.stale += 1
+            return 'stale'
+        self.commands[robot] = u
+        self.command_step[robot] = s
+        c.accepted += 1
+        return 'accepted'
+
+    def malformed(self) -> str:
+        """Count a command message that could not be decoded; returns ``malformed``."""
+        self.counters.malformed += 1
+        return 'malformed'
+
+    # --- lockstep ------------------------------------------------------------------
+    def waiting(self) -> List[int]:
+        """Live robots that have not answered the current step."""
+        return [r for r in range(self.n) if r not in self.answered and r not in self.lost]
+
+    def can_advance(self) -> bool:
+        """Lockstep: every live robot answered (always true in ground-truth mode). Counted, not
+        scanned: this runs after every command."""
+        return self.ground_truth is not None or self._settled >= self.n
+
+    def overdue(self, wall: float, timeout: float) -> List[int]:
+        """Robots still waited for ``timeout`` wall seconds after the step was published."""
+        if self.ground_truth is not None or wall - self.step_wall < timeout:
+            return []
+        return self.waiting()
+
+    def declare_lost(self, robots: Sequence[int]) -> None:
+        """Stop ``robots`` (brake or zero velocity) and stop waiting for them."""
+        for r in robots:
+            if r not in self.lost:
+                self.lost.add(r)
+                self.counters.lost_events += 1
+                self._settled += r not in self.answered
+
+    # --- stepping ------------------------------------------------------------------
+    def advance(self) -> np.ndarray:
+        """One step of ``dt``; returns the new states ``[n, d]``."""
+        if self.ground_truth is not None:
+            self.states = np.array(self.ground_truth.step()[0], dtype=np.float64)
+        else:
+            command = self.commands.copy()
+            if self.mode == 'realtime':
+                old = (self.command_step < 0) | (self.step - self.command_step > self.command_timeout_steps)
+            else:
+                old = np.zeros(self.n, dtype=bool)
+                old[sorted(self.lost)] = True
+            if old.any():
+                self.counters.zeroed += int(np.count_nonzero(old))
+                command[old] = self.stop_commands()[old]
+            self.applied = command
+            if self.robot is not None:
+                self.robot.step(command, self.dt)
+                self.states = self.robot.states()
+            else:
+                self.states = zoh_step(self.states, command, self.spec, self.dt)
+        self.step += 1
+        self.answered = set()
+        self._settled = len(self.lost)
+        return self.states
+
+    def stop_commands(self) -> np.ndarray:
+        """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
+        if self.robot is not None:  # (v, omega) = 0: the base brakes within its own limits
+            return np.zeros((self.n, 2))
+        v = (
+            self.states[:, self.spec.velocity]
+            if self.spec.command == 'acceleration'
+            else np.zeros((self.n, self.spec.command_dim))
+        )
+        return stop_command(self.spec.command, v, self.stop_limit, self.dt)
+
+    # --- reporting -----------------------------------------------------------------
+    def report(self) -> Dict[str, Any]:
+        """JSON-able figures: steps, counters, latency percentiles (milliseconds)."""
+        lat = percentiles([x * 1e3 for x in self.latency])
+        return {
+            'step': self.step,
+            'robots': self.n,
+            'lost': sorted(self.lost),
+            'counters': dict(self.counters.__dict__),
+            'latency_ms': {k: v for k, v in lat.items()},
+        }

@@ -1,0 +1,393 @@
+"""The ``agent`` executable: one robot's learnt controller as a ROS 2 node.
+
+``ros2 run knode_swarm_ros agent --ros-args -p id:=3 --params-file config/agent_flock2d.yaml``
+
+Subscribes to every robot's ``robot_<j>/odom`` (its own included), publishes
+``robot_<id>/cmd_accel`` (flock2d, AccelStamped) or ``robot_<id>/cmd_vel`` (boids3d,
+TwistStamped) stamped with the own state's stamp, and ``robot_<id>/agent_status`` (JSON:
+readiness and counters). All buffering and maths live in :class:`AgentLogic`; this node only
+declares parameters, converts messages and keeps time. The node is called ``agent_<id>`` when
+``-p id:=N`` is on the command line.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from functools import partial
+
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.lifecycle import LifecycleNode
+from std_msgs.msg import String
+
+from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS, AgentLogic
+from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
+from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
+from knode_swarm_ros.logic.common import (
+    ConfigError,
+    agent_status_topic,
+    command_topic,
+    is_robot_frame,
+    odom_topic,
+    status_json,
+)
+from knode_swarm_ros.logic.reporting import LOG_EVERY_S as _LOG_EVERY_S
+from knode_swarm_ros.logic.reporting import Throttle, throttled_log, write_json_report
+from knode_swarm_ros.nodes.common import qos
+from knode_swarm_ros.nodes.common.conversions import (
+    CdrError,
+    command_msg_type,
+    command_to_msg,
+    odom_fields_from_cdr,
+    odom_from_cdr,
+    time_msg,
+)
+from knode_swarm_ros.nodes.common.executor import run_node
+from knode_swarm_ros.nodes.common.params import check_overrides, declare, node_name_from_args
+
+from .health import AgentHealth
+from .link import AgentLink
+from .managed import ManagedAgentMixin
+from .params import declare_agent_parameters
+from .unicycle import AgentUnicycle
+
+__all__ = ['AgentNode', 'main', 'load_agent_policy']
+
+_EXPLAIN = {
+    'malformed': 'that could not be decoded as nav_msgs/Odometry',
+    'unknown_id': 'from a robot that is not part of the swarm',
+    'bad_size': 'of the wrong size',
+    'non_finite': 'with non-finite values',
+    'too_old': 'older than state_timeout',
+    'too_future': 'stamped further ahead of the clock than future_tolerance',
+}
+
+
+def load_agent_policy(
+    path: str,
+    scenario: str,
+    k: int,
+    d_cr: float,
+    tau: int,
+    dt: float,
+    runtime: str = 'auto',
+    threads: int = 1,
+    control_rate: float = 0.0,
+):
+    """Load the policy and check the optional parameters against its metadata.
+
+    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too); with a
+    realtime ``control_rate`` > 0 (and ``dt`` unset) the shipped one trained for that rate,
+    if there is one (:func:`.control_period.shipped_policy_for_rate`).
+    ``runtime`` (``policy_runtime``): ``auto`` runs the ONNX twin on onnxruntime when it exists
+    and onnxruntime is installed, else TorchScript (only that path imports torch).
+    ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
+    ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
+
+    Raises:
+        ConfigError: missing, corrupt or mismatched policy file; the message names the
+            parameter or the file and both values.
+    """
+    from knode_swarm_ros.core.policy_meta import PolicyError, PolicyMismatchError, shipped_policy_path
+    from knode_swarm_ros.core.policy_runtime import (
+        load_runtime,  # imports torch only for the TorchScript backend
+    )
+
+    if not path:
+        scenario = scenario or 'flock2d'
+        try:
+            path = str(
+                shipped_policy_for_rate(scenario, control_rate)[0]
+                if control_rate > 0 and dt <= 0
+                else shipped_policy_path(scenario)
+            )
+        except PolicyError as exc:
+            raise ConfigError(
+                f"parameter 'policy' is empty, so the shipped policy of scenario "
+                f'{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt'
+            ) from None
+    wanted = {
+        'scenario': scenario or None,
+        'k': k if k > 0 else None,
+        'd_cr': d_cr if d_cr > 0 else None,
+        'tau': tau if tau >= 0 else None,
+        'dt': dt if dt > 0 else None,
+    }
+    try:
+        return load_runtime(path, runtime, expect=wanted, threads=threads)
+    except PolicyMismatchError as exc:  # the parameter and the file disagree: name the parameter
+        raise ConfigError(
+            f'parameter {exc.key!r} = {exc.required!r} contradicts the policy file {path}, '
+            f'whose knode.json has {exc.key} = {exc.got!r} (leave {exc.key!r} unset to use the '
+            f"policy's value)"
+        ) from None
+    except PolicyError as exc:
+        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
+
+
+class AgentNode(ManagedAgentMixin, LifecycleNode):
+    """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md); a
+    lifecycle node (:mod:`.agent_lifecycle`) that configures and activates itself unless managed."""
+
+    def __init__(self, node_name: str = 'agent', **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.managed = declare(
+            self,
+            'managed',
+            False,
+            'true: wait for the lifecycle services (configure, then '
+            'activate); false: configure and activate at start',
+        )
+        if not self.managed:
+            self._setup()  # errors propagate: exit status 2 with the message
+            self.configured = True
+            self.trigger_configure()
+            self.trigger_activate()
+
+    def _setup(self) -> None:
+        """Parameters, policy (loaded, checked, warmed up), subscriptions, timers: configure."""
+        robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
+        if robot_id < 0:
+            raise ConfigError("parameter 'id' is required: pass -p id:=N")
+        p = declare_agent_parameters(self)  # the same for the hosting ``agents`` node
+        mode, control_rate, state_timeout = p.mode, p.control_rate, p.state_timeout
+        self.twist_frame = p.twist_frame
+        self.link = AgentLink(self, robot_id, mode)  # link model (loss, delay, range): off by default
+        self.report_path = declare(
+            self, 'report', '', 'write counters as JSON to this file at exit (empty: no)'
+        )
+        check_overrides(self, sys.argv)
+
+        ids = p.ids
+        config = p.config(robot_id)
+        config.validate()
+
+        policy = load_agent_policy(p.policy, *p.policy_args())
+        self.logic = AgentLogic(config, policy)
+        self.spec = self.logic.spec
+        self._warm_up()
+        self.unicycle = AgentUnicycle(
+            self,
+            robot_id,
+            self.spec,
+            mode,  # off by default; lockstep: period dt
+            control_rate if mode == 'realtime' else 1.0 / policy.dt,
+            qos.COMMAND,
+            self.twist_frame,
+        )
+        self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
+
+        self.mode = mode
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._drops = {reason: [0, 0.0, ''] for reason in DROP_REASONS}  # count since log, last log, detail
+        self._log_throttle = Throttle()
+        self._announced_ready = False
+
+        self.cmd_pub = self.create_publisher(
+            command_msg_type(self.spec), command_topic(robot_id, self.spec.command), qos.COMMAND
+        )
+        self.status_pub = self.create_publisher(String, agent_status_topic(robot_id), qos.STATUS)
+        # raw=True: serialized bytes, decoded by conversions.odom_from_cdr (3x cheaper than rclpy's)
+        self.odom_subs = [
+            self.create_subscription(
+                Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM, raw=True
+            )
+            for rid in ids
+        ]
+        self.on_state = (
+            self.logic.ticks is not None
+        )  # realtime: ticks come with the own state (realtime_tick.py)
+        if mode == 'realtime':
+            self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
+            if (
+                self.on_state
+            ):  # the grace of a tick waiting for its neighbours' states: armed by _realtime_poll
+                self.grace_timer = self.create_timer(
+                    self.logic.ticks.grace_s, self._on_grace, clock=self._wall
+                )
+                self._grace = GraceArm(self.grace_timer)
+        else:
+            self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
+        self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
+        self.get_logger().info(
+            f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
+            f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
+            f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}'
+        )
+        self._log_events()  # the control-period warning, once, at start
+        self._publish_status()
+
+    def _warm_up(self) -> None:
+        import numpy as np
+
+        Y = np.zeros((self.logic.k, self.spec.state_dim))
+        mask = np.zeros(self.logic.k, dtype=bool)
+        mask[0] = True
+        self.logic.evaluate(Y, mask)
+
+    # --- callbacks -----------------------------------------------------------------
+    def _on_odom(self, topic_robot: int, data: bytes) -> None:
+        try:
+            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
+        except CdrError as exc:
+            self.logic.malformed()
+            self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
+            return
+        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
+        if self.unicycle.enabled and robot is not None:  # the policy sees the point ahead (unicycle_state)
+            z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
+        now = self.get_clock().now().nanoseconds
+        if not self._through_link(robot, stamp, z, now):
+            if self.on_state:  # states the link released may complete a waiting tick
+                self._realtime_poll(now)
+            return
+        outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
+        if outcome in self._drops:
+            detail = (
+                f'child_frame_id {frame!r} on {odom_topic(topic_robot)}'
+                if outcome == 'unknown_id'
+                else f'robot {topic_robot} at {stamp * 1e-9:.3f} s (clock {now * 1e-9:.3f} s)'
+            )
+            self._note_drop(outcome, detail)
+        if self.mode == 'lockstep':
+            self._lockstep_poll()
+        elif self.on_state:
+            self._realtime_poll(now)
+        if not self._announced_ready and self.logic.ready:
+            self._announced_ready = True
+            self.get_logger().info(f'heard all {len(self.logic.ids)} robots: ready')
+            self._publish_status()
+
+    def _lockstep_poll(self) -> None:
+        cmd = self.logic.lockstep_poll(time.monotonic())
+        if cmd is not None:
+            self._publish_command(cmd)
+        self._log_events()
+
+    def _on_lockstep_timer(self) -> None:
+        self._lockstep_poll()
+        self._flush_drops()
+
+    def _through_link(self, robot, stamp: int, z, now: int) -> bool:
+        """True: file the state now; False: the link model took it (lost, out of range, or
+        filed when its delay has passed, by :meth:`_release_link`)."""
+        if not self.link.enabled or robot is None or robot == self.logic.me:
+            return True
+        latest = self.logic.buffer.latest(self.logic.me)
+        self.link.offer(
+            now * 1e-9, robot, stamp, z, None if latest is None else latest[1], self.spec.position_dim
+        )
+        self._release_link(now)
+        return False
+
+    def _release_link(self, now: int) -> None:
+        # Before the clock runs (0: the simulator waits for every agent to hear every robot) a delay
+        # cannot pass: deliver what the link let through, or the swarm would never start.
+        for robot, stamp, z in self.link.due(now * 1e-9 if now > 0 else float('inf')):
+            self.logic.receive(robot, stamp, z, now, time.monotonic())
+
+    def _realtime_poll(self, now: int) -> None:
+        cmd = self.logic.realtime_poll(now, time.monotonic())
+        if cmd is not None:
+            self._publish_command(cmd)
+        self._grace.set(self.logic.ticks.pending is not None)
+
+    def _on_grace(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        self._release_link(now)
+        self._realtime_poll(now)
+
+    def _on_tick(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        self._release_link(now)
+        cmd = self.logic.watchdog(now) if self.on_state else self.logic.tick(now)
+        if cmd is None:
+            # (ticking on the own state, a fresh own state also gives None: its arrival ticks)
+            if not (self.on_state and self.logic.me in self.logic.newest_ns):
+                self._throttled(
+                    'no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command'
+                )
+        else:
+            if cmd.stop:
+                own = self.logic.newest_ns.get(self.logic.me, 0)
+                self._throttled(
+                    'stale',
+                    f'own state is stale ({(now - own) * 1e-9:.3f} s old, timeout '
+                    f'{self.logic.config.state_timeout:g} s): publishing a stop command '
+                    '(zero velocity, or a brake to rest)',
+                    warn=True,
+                )
+            self._publish_command(cmd)
+        self._log_events()
+        self._flush_drops()
+
+    def _publish_command(self, cmd) -> None:
+        if not self.active:  # managed and not active: only the stop after deactivate, then nothing
+            self._brake(cmd.stamp_ns)
+            return
+        if self.unicycle.enabled:  # differential drive: cmd_vel (linear.x, angular.z)
+            self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
+        else:
+            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+
+    # --- logging -------------------------------------------------------------------
+    def _throttled(self, key: str, text: str, warn: bool = False) -> None:
+        throttled_log(self.get_logger(), self._log_throttle, key, text, warn)
+
+    def _note_drop(self, reason: str, detail: str) -> None:
+        entry = self._drops[reason]
+        entry[0] += 1
+        entry[2] = detail
+        if time.monotonic() - entry[1] >= _LOG_EVERY_S:
+            self._flush_drop(reason)
+
+    def _flush_drops(self) -> None:
+        for reason, entry in self._drops.items():
+            if entry[0] and time.monotonic() - entry[1] >= _LOG_EVERY_S:
+                self._flush_drop(reason)
+
+    def _flush_drop(self, reason: str) -> None:
+        entry = self._drops[reason]
+        self.get_logger().warning(
+            f'dropped {entry[0]} state(s) {_EXPLAIN[reason]} ({reason}; latest: {entry[2]}; '
+            f'{self.logic.counters[reason]} in all)'
+        )
+        entry[0], entry[1] = 0, time.monotonic()
+
+    def _log_events(self) -> None:
+        for text in self.logic.drain_events():
+            self.get_logger().warning(text)
+
+    def _publish_status(self) -> None:
+        status = self._status()
+        self.status_pub.publish(String(data=status_json(**status)))
+        last = self.logic.last_command
+        self.health.publish(
+            status,
+            self.get_clock().now().nanoseconds,
+            self.logic.newest_ns.get(self.logic.me),
+            0 if last is None else last.neighbours,
+            time.monotonic(),
+        )
+
+    def _status(self) -> dict:
+        status = self.logic.status()
+        status['ready'] = bool(status['ready'] and self.active)  # a simulator waits for activation
+        status['lifecycle'] = 'active' if self.active else 'inactive'
+        if self.link.enabled:
+            status['link'] = self.link.status()
+        if getattr(self, 'unicycle', None) is not None and self.unicycle.enabled:
+            status['unicycle'] = self.unicycle.status()
+        return status
+
+    def write_report(self) -> None:
+        """Write the counters to the ``report`` file (if set)."""
+        if getattr(self, 'report_path', ''):
+            write_json_report(self.report_path, self._status())
+
+
+def main(args=None):
+    """Entry point of the ``agent`` executable."""
+    argv = args if args is not None else sys.argv
+    run_node('agent', lambda: AgentNode(node_name_from_args(argv, 'agent')), AgentNode.write_report, args)

@@ -1,0 +1,2 @@
+"""Learning: the config (:mod:`.config`), samples (:mod:`.samples`), objectives, the training
+loop (:mod:`.trainer`), the control period (:mod:`.period`), the ONNX twin and run records."""

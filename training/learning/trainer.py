@@ -1,0 +1,573 @@
+"""The training loop behind ``python -m training.train`` and ``training.grid``: data split, epochs,
+checkpoints, model selection by rollouts, export of the policy and its ONNX twin.
+
+One :class:`Trainer` per run directory; see :mod:`training.train` for the files it writes and
+:mod:`training.learning.config` for the config it takes. Shapes as in :mod:`training.learning.samples`.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import sys
+import time
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+import torch
+import yaml
+
+from knode_swarm_ros.core import PolicyError, export_policy, get_scenario, load_trajectories
+from knode_swarm_ros.core.errors import KnodeError, RunError
+from knode_swarm_ros.core.trajectory import atomic_write
+from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
+
+from .config import ConfigError, build_policy
+from .objectives import loss_scales, one_step_loss, predict_next
+from .period import period_ratio, phases, policy_dt, subsample
+from .records import code_provenance, data_reference, write_json
+from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples
+
+
+class DivergenceError(RunError, RuntimeError):
+    """Training diverged (NaN or exploding loss); ``training.train`` exits 3 (documented there)."""
+
+    exit_status = 3
+
+    def __str__(self) -> str:
+        return f'training diverged: {super().__str__()}'
+
+
+class DataError(KnodeError, ValueError):
+    """The data file does not fit the config."""
+
+
+def split_data(cfg: Dict[str, Any], data) -> Dict[str, np.ndarray]:
+    """Train and validation trajectories ``[N, T, n, d]`` from the file's ``train`` split."""
+    dcfg = cfg['data']
+    idx = data.split('train')
+    if dcfg['train_trajectories'] is not None:
+        idx = idx[: dcfg['train_trajectories']]
+    n_val = dcfg['val_trajectories']
+    if n_val >= len(idx):
+        raise DataError(
+            f"config field 'data.val_trajectories' = {n_val}: the data's train split holds only "
+            f'{len(idx)} trajectories; keep at least one for training'
+        )
+    frames = data.states.shape[1] if dcfg['frames'] is None else min(dcfg['frames'], data.states.shape[1])
+    if frames < 2:
+        raise DataError(f'trajectories hold {data.states.shape[1]} frame(s); training needs at least 2')
+    states = data.states[:, :frames]
+    train_idx, val_idx = idx[: len(idx) - n_val], idx[len(idx) - n_val :]
+    return {'train': states[train_idx], 'val': states[val_idx], 'train_idx': train_idx, 'val_idx': val_idx}
+
+
+def _epoch_generator(seed: int, epoch: int) -> torch.Generator:
+    g = torch.Generator()
+    g.manual_seed(int(seed) * 100003 + int(epoch))
+    return g
+
+
+def _lr_lambda(cfg: Dict[str, Any]):
+    t = cfg['training']
+    epochs, lr, lr_min = t['epochs'], t['lr'], t['lr_min']
+    floor = min(lr_min / lr, 1.0)
+
+    def fn(epoch: int) -> float:
+        if t['lr_schedule'] == 'cosine':
+            return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(epoch, epochs) / epochs))
+        if t['lr_schedule'] == 'step':
+            return max(0.1 ** (epoch // max(epochs // 3, 1)), floor)
+        return 1.0
+
+    return fn
+
+
+def _selection_text(sel: Dict[str, Any]) -> str:
+    """The log's form of a selection record: ``select score=... rollouts=...``."""
+    return 'select ' + ' '.join(f'{k}={v:.3g}' for k, v in sel.items())
+
+
+class Trainer:
+    """All training state; :meth:`run` trains to the configured epoch count.
+
+    ``data_path``: one trajectory file, or a list of files (swarms of different sizes, same
+    scenario and dt) whose samples are pooled; selection rolls out each file's validation swarms.
+    """
+
+    def __init__(
+        self,
+        cfg: Dict[str, Any],
+        data_path,
+        out_dir: str,
+        resume: bool = False,
+        progress: bool = True,
+        log=print,
+    ):
+        self.cfg = cfg
+        self.data_path = data_path
+        self.out = out_dir
+        self.progress = progress
+        self.log = log
+        self.spec = get_scenario(cfg['scenario'])
+        torch.set_num_threads(cfg['training']['threads'])
+        paths = [data_path] if isinstance(data_path, (str, os.PathLike)) else list(data_path)
+        if not paths:
+            raise DataError('no data file given')
+        self.data_paths = paths
+        # the code that trains is the code at the start (a tree edited during a run must not
+        # change what the policy says it came from)
+        self.code = code_provenance()
+        # Several files may hold swarms of different sizes (issue 13): the neighbour matrix has
+        # k rows whatever n is, so their samples train one size-agnostic policy (training.datasets).
+        pc, nc = cfg['policy'], cfg['noise']
+        std = math.sqrt(nc['variance'])
+        obs_std = std if nc['mode'] == 'observations' else 0.0
+        self.input_std = std if nc['mode'] == 'inputs' else 0.0
+        rng = np.random.default_rng(cfg['seed'])
+        t0 = time.perf_counter()
+        self.splits, train_parts, val_parts = [], [], []
+        for path in paths:
+            data = self._load(path)
+            split = split_data(cfg, data)
+            if split['train'].shape[1] <= self.ratio:
+                raise DataError(
+                    f'{path}: trajectories of {split["train"].shape[1]} frames are too short for '
+                    f'a policy step of {self.ratio} frames (data.policy_dt = {self.dt:g} s)'
+                )
+            self.splits.append(split)
+            train_parts.append(
+                make_samples(
+                    split['train'],
+                    self.spec,
+                    pc['d_cr'],
+                    pc['k'],
+                    pc['tau'],
+                    cfg['data']['stride'],
+                    obs_std,
+                    rng,
+                    ratio=self.ratio,
+                )
+            )
+            if len(split['val']):
+                val_parts.append(
+                    make_samples(split['val'], self.spec, pc['d_cr'], pc['k'], pc['tau'], 1, ratio=self.ratio)
+                )
+        self.split = self.splits[0]
+        self.train = concat_samples(train_parts)
+        self.val = concat_samples(val_parts) if val_parts else None
+        self.dropped = 0
+        if cfg['data']['drop_saturated']:
+            # Samples whose implied command exceeds the policy's saturation cannot be reproduced
+            # by any saturated policy; a few close pairs at t = 0 would otherwise dominate the MSE.
+            keep = (
+                implied_command(self.train.clean_own, self.train.target, self.spec, self.dt).abs().amax(1)
+                <= pc['command_limit']
+            )
+            self.dropped = int((~keep).sum())
+            self.train = self.train.subset(keep)
+            if self.val is not None:
+                keep = (
+                    implied_command(self.val.clean_own, self.val.target, self.spec, self.dt).abs().amax(1)
+                    <= pc['command_limit']
+                )
+                self.val = self.val.subset(keep)
+        if len(self.train) == 0:
+            raise DataError(f'{", ".join(paths)}: no training samples left (data.drop_saturated removed all)')
+        self.prep_s = time.perf_counter() - t0
+        self.scales = loss_scales(
+            self.spec, self.dt, cfg['training']['loss_units'], cfg['training']['heading_weight']
+        )
+        torch.manual_seed(cfg['seed'])
+        self.policy = build_policy(cfg)
+        self.multi = None
+        if cfg['training']['objective'] == 'multi_step':
+            if len(self.splits) > 1:
+                raise ConfigError(
+                    "training.objective = 'multi_step' takes one --data file (windows roll out "
+                    "one swarm); mixed sizes train with 'one_step'"
+                )
+            from .multistep import MultiStepObjective, load_init_state
+
+            # windows step at the policy's dt: every phase of the subsampled data is a trajectory
+            self.multi = MultiStepObjective(cfg, self.spec, self.dt, phases(self.split['train'], self.ratio))
+            if cfg['multistep']['init'] is not None:
+                try:
+                    self.policy.load_state_dict(load_init_state(cfg['multistep']['init'], cfg['policy']))
+                except (OSError, RuntimeError, ValueError) as exc:
+                    raise ConfigError(
+                        f"config field 'multistep.init' = {cfg['multistep']['init']!r}: {exc}"
+                    ) from None
+        tc = cfg['training']
+        self.opt = torch.optim.Adam(self.policy.parameters(), lr=tc['lr'], weight_decay=tc['weight_decay'])
+        self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, _lr_lambda(cfg))
+        self.epoch = 0  # epochs completed
+        self.best: Optional[Dict[str, Any]] = None
+        self.start_selection: Optional[Dict[str, Any]] = None  # the starting model's score (fine-tuning)
+        self.ref_loss: Optional[float] = None
+        self.elapsed = 0.0
+        os.makedirs(out_dir, exist_ok=True)
+        self.ckpt_path = os.path.join(out_dir, 'checkpoint.pt')
+        self.metrics_path = os.path.join(out_dir, 'metrics.jsonl')
+        # A fresh run leaves an earlier run's files in out_dir alone until its own first epoch is
+        # done (_claim_out): a run that fails before that must not damage them.
+        self._claimed = resume
+        if resume:
+            self._resume()
+            self._write_config()
+
+    def _load(self, path: str):
+        """One data file, checked against the config and the files before it (scenario, dt)."""
+        data = load_trajectories(path)
+        if data.scenario != self.cfg['scenario']:
+            raise DataError(
+                f"{path}: field 'scenario' is {data.scenario!r} but the config trains "
+                f'{self.cfg["scenario"]!r}'
+            )
+        if data.states.shape[2] < 2:
+            raise DataError(f"{path}: field 'states' holds {data.states.shape[2]} robot(s); need >= 2")
+        if hasattr(self, 'data_dt'):
+            if abs(float(data.dt) - self.data_dt) > 1e-9 * self.data_dt:
+                raise DataError(
+                    f"{path}: field 'dt' is {float(data.dt):g} s but {self.data_paths[0]} has "
+                    f'{self.data_dt:g} s; every --data file must share one dt'
+                )
+            return data
+        # The policy's dt: the data's, or a whole multiple of it (data.policy_dt, training.learning.period).
+        self.data_dt = float(data.dt)
+        try:
+            self.ratio = period_ratio(self.data_dt, self.cfg['data']['policy_dt'])
+        except ValueError as exc:
+            raise DataError(f'{path}: config field {exc}') from None
+        self.dt = policy_dt(self.data_dt, self.ratio)
+        return data
+
+    def _claim_out(self) -> None:
+        if self._claimed:
+            return
+        for name in ('metrics.jsonl', 'summary.json'):
+            if os.path.exists(os.path.join(self.out, name)):
+                os.unlink(os.path.join(self.out, name))
+        self._write_config()
+        self._claimed = True
+
+    def _last_good(self) -> str:
+        if not self._claimed:
+            return f'no epoch of this run completed; the files already in {self.out} were left as they were'
+        return f'last good checkpoint (epoch {self.epoch}) kept at {self.ckpt_path}'
+
+    # -- persistence
+    def _write_config(self) -> None:
+        text = yaml.safe_dump(self.cfg, sort_keys=False)
+        atomic_write(os.path.join(self.out, 'config.yaml'), lambda tmp: open(tmp, 'w').write(text))
+
+    def _resume(self) -> None:
+        if not os.path.isfile(self.ckpt_path):
+            raise DataError(f'--resume: no checkpoint at {self.ckpt_path}')
+        ck = torch.load(self.ckpt_path, map_location='cpu', weights_only=False)
+        if ck['config'] != self.cfg:
+            raise ConfigError(
+                f'--resume: the config differs from the one in {self.ckpt_path}; '
+                'use the same config (or a new --out)'
+            )
+        self.policy.load_state_dict(ck['model'])
+        self.opt.load_state_dict(ck['optimizer'])
+        self.sched.load_state_dict(ck['scheduler'])
+        self.epoch, self.best, self.ref_loss = ck['epoch'], ck['best'], ck['ref_loss']
+        self.start_selection = ck.get('start_selection')
+        self.elapsed = ck.get('elapsed', 0.0)
+        # keep the metrics log consistent with the checkpoint (drop epochs after it)
+        if os.path.exists(self.metrics_path):
+            with open(self.metrics_path) as fh:
+                lines = [ln for ln in fh if ln.strip() and json.loads(ln)['epoch'] <= self.epoch]
+            atomic_write(self.metrics_path, lambda tmp: open(tmp, 'w').writelines(lines))
+        self.log(f'resumed from {self.ckpt_path} after epoch {self.epoch}')
+
+    def _save_checkpoint(self) -> None:
+        ck = {
+            'config': self.cfg,
+            'model': self.policy.state_dict(),
+            'optimizer': self.opt.state_dict(),
+            'scheduler': self.sched.state_dict(),
+            'epoch': self.epoch,
+            'best': self.best,
+            'ref_loss': self.ref_loss,
+            'elapsed': self.elapsed,
+            'start_selection': self.start_selection,
+        }
+        atomic_write(self.ckpt_path, lambda tmp: torch.save(ck, tmp))
+
+    # -- one epoch
+    def _batches(self, g: torch.Generator) -> List[torch.Tensor]:
+        if self.multi is not None:
+            return self.multi.batches(self.epoch + 1, g)
+        M = len(self.train)
+        bs = self.cfg['training']['batch_size']
+        bs = M if bs == 'full' else min(bs, M)
+        perm = torch.randperm(M, generator=g)
+        return list(torch.split(perm, bs))
+
+    def _loss(self, s: Samples, idx: Optional[torch.Tensor], g: Optional[torch.Generator]) -> torch.Tensor:
+        if self.multi is not None and s is self.train:
+            return self.multi.loss(self.policy, idx, g)
+        Y, mask, target, own = (
+            (s.Y, s.mask, s.target, s.clean_own)
+            if idx is None
+            else (s.Y[idx], s.mask[idx], s.target[idx], s.clean_own[idx])
+        )
+        ac = self.cfg['augment']
+        if g is not None and (ac['rotate'] or ac['velocity_boost'] > 0):
+            Y, own, target = augment_batch(
+                Y, mask, own, target, self.spec, self.dt, ac['rotate'], ac['velocity_boost'], g
+            )
+        noise = None
+        if g is not None and self.input_std > 0:
+            noise = torch.randn(Y.shape, generator=g) * self.input_std
+        tc = self.cfg['training']
+        pred = predict_next(
+            self.policy, self.spec, self.dt, Y, mask, own, tc['solver'], tc['ode_method'], noise
+        )
+        return one_step_loss(pred, target, self.scales)
+
+    def val_loss(self) -> Optional[float]:
+        if self.val is None:
+            return None
+        total, M = 0.0, len(self.val)
+        with torch.no_grad():
+            for idx in torch.split(torch.arange(M), 65536):
+                total += float(self._loss(self.val, idx, None)) * len(idx)
+        return total / M
+
+    def select_metrics(self) -> Optional[Dict[str, Any]]:
+        """Roll the current module out from the validation trajectories' first frames."""
+        sc = self.cfg['selection']
+        if sc['every'] == 0 or all(len(sp['val']) == 0 for sp in self.splits):
+            return None
+        self.policy.eval()
+        m: Dict[str, Any] = {}
+        for split in self.splits:  # one batch of rollouts per file (its swarm size)
+            if len(split['val']) == 0:
+                continue
+            truth = subsample(split['val'][: sc['trajectories']], self.ratio)  # frames at the policy's dt
+            steps = truth.shape[1] - 1 if sc['steps'] is None else min(sc['steps'], truth.shape[1] - 1)
+            truth = truth[:, : steps + 1]
+            # several rollouts per start sample the chaotic spread (copy 0 is the start itself; the
+            # same perturbations every epoch and run, so epochs are ranked on the same draws)
+            starts = perturbed_starts(truth[:, 0], sc['rollouts'], sc['perturb'], self.spec.position_dim)
+            pred = rollout_module(self.policy, self.spec, starts, steps, self.cfg['policy'], self.dt)
+            if not np.all(np.isfinite(pred)):
+                self.policy.train()
+                return {'score': float('inf')}
+            truth = np.repeat(truth, sc['rollouts'], axis=0)
+            for key, values in final_metrics(self.spec, pred, truth, dt=self.dt).items():
+                m.setdefault(key, []).extend(values)
+        self.policy.train()
+        out = {'score': selection_score(self.spec, m), 'rollouts': len(m['amd_final'])}
+        # the spread behind the score: standard error of its per-rollout term over the rollouts
+        spread_key = 'avd_final' if self.spec.name == 'flock2d' else 'pod_kld'
+        if len(m.get(spread_key, [])) > 1:
+            out[spread_key + '_se'] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
+        # the medians are what the score's amd term compares; the means are kept for older logs
+        out['amd_median'] = float(np.median(m['amd_final']))
+        out['truth_amd_median'] = float(np.median(m['truth_amd_final']))
+        for key in (
+            'avd_final',
+            'amd_final',
+            'truth_amd_final',
+            'truth_avd_final',
+            'pod_kld',
+            'min_distance',
+        ):
+            if key in m:
+                out[key] = float(np.min(m[key]) if key == 'min_distance' else np.mean(m[key]))
+        if 'stays_inside' in m:
+            out['stays_inside'] = float(np.mean(m['stays_inside']))
+        return out
+
+    def run(self, stop_after: Optional[int] = None) -> Optional[Dict[str, Any]]:
+        """Train to ``training.epochs`` (or only up to epoch ``stop_after``, leaving a checkpoint
+        to resume from and returning None) and export the policy."""
+        tc, sc = self.cfg['training'], self.cfg['selection']
+        epochs = tc['epochs']
+        from tqdm import tqdm
+
+        start = time.perf_counter() - self.elapsed
+        if self.epoch == 0 and self.best is None:
+            self._select_starting_model()
+        while self.epoch < epochs:
+            e = self.epoch + 1
+            g = _epoch_generator(self.cfg['seed'], e)
+            t0 = time.perf_counter()
+            self.policy.train()
+            batches = self._batches(g)
+            bar = tqdm(
+                batches,
+                desc=f'epoch {e}/{epochs}',
+                leave=False,
+                disable=not self.progress,
+                mininterval=0.5,
+                file=sys.stderr,
+            )
+            total, count = 0.0, 0
+            for idx in bar:
+                loss = self._loss(self.train, idx, g)
+                value = loss.item()
+                if not math.isfinite(value) or (
+                    self.ref_loss is not None and value > tc['diverge_factor'] * self.ref_loss
+                ):
+                    raise DivergenceError(
+                        f'epoch {e}: batch loss {value:.4g} is '
+                        f'{"not finite" if not math.isfinite(value) else "exploding"} '
+                        f'(reference {self.ref_loss}); stopped, {self._last_good()}'
+                    )
+                self.opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if tc['grad_clip'] is not None:
+                    torch.nn.utils.clip_grad_norm_(self.policy.parameters(), tc['grad_clip'])
+                self.opt.step()
+                with torch.no_grad():
+                    biggest = max(float(p.abs().max()) for p in self.policy.parameters())
+                if not math.isfinite(biggest) or biggest > tc['max_param']:
+                    raise DivergenceError(
+                        f'epoch {e}: a parameter reached {biggest:.3g} (limit training.max_param = '
+                        f'{tc["max_param"]:g}); stopped, {self._last_good()}'
+                    )
+                total += value * len(idx)
+                count += len(idx)
+                bar.set_postfix(loss=f'{total / count:.4g}')
+            train_loss = total / count
+            if not all(torch.all(torch.isfinite(p)) for p in self.policy.parameters()):
+                raise DivergenceError(
+                    f'epoch {e}: parameters became non-finite; stopped, {self._last_good()}'
+                )
+            if self.ref_loss is None:
+                self.ref_loss = train_loss
+            lr = self.opt.param_groups[0]['lr']
+            self.sched.step()
+            epoch_s = time.perf_counter() - t0
+            record: Dict[str, Any] = {
+                'epoch': e,
+                'train_loss': train_loss,
+                'val_loss': self.val_loss(),
+                'lr': lr,
+                'epoch_s': round(epoch_s, 3),
+            }
+            # a run cut short by max_minutes scores its last epoch too: it is the one it ends with
+            out_of_time = (
+                tc['max_minutes'] is not None and time.perf_counter() - start > 60 * tc['max_minutes']
+            )
+            if sc['every'] and (e % sc['every'] == 0 or e == epochs or out_of_time):
+                sel = self.select_metrics()
+                if sel is not None:
+                    record['selection'] = sel
+                    if self.best is None or sel['score'] < self.best['score']:
+                        self.best = {
+                            'epoch': e,
+                            'score': sel['score'],
+                            'metrics': sel,
+                            'state': copy.deepcopy(self.policy.state_dict()),
+                        }
+            self.epoch = e
+            self.elapsed = time.perf_counter() - start
+            record['elapsed_s'] = round(self.elapsed, 2)
+            self._claim_out()
+            with open(self.metrics_path, 'a') as fh:
+                fh.write(json.dumps(record) + '\n')
+            self._save_checkpoint()
+            msg = f'epoch {e}/{epochs} train {train_loss:.4g} val {record["val_loss"] if record["val_loss"] is None else format(record["val_loss"], ".4g")} lr {lr:.2e} ({epoch_s:.1f}s)'
+            if 'selection' in record:
+                msg += ' ' + _selection_text(record['selection'])
+            self.log(msg)
+            if stop_after is not None and e >= stop_after:
+                return None
+            if out_of_time:
+                self.log(f'stopping after epoch {e}: training.max_minutes = {tc["max_minutes"]} reached')
+                break
+        return self.finish()
+
+    def _select_starting_model(self) -> None:
+        """Fine-tuning from ``multistep.init``: the starting model is the first candidate of the
+        selection (epoch 0), so the run never returns a model that rolls out worse than it started."""
+        if self.multi is None or self.cfg['multistep']['init'] is None or not self.cfg['selection']['every']:
+            return
+        sel = self.select_metrics()
+        self.start_selection = sel
+        if sel is not None and math.isfinite(sel['score']):
+            self.best = {
+                'epoch': 0,
+                'score': sel['score'],
+                'metrics': sel,
+                'state': copy.deepcopy(self.policy.state_dict()),
+            }
+            self.log('starting model (multistep.init) ' + _selection_text(sel))
+
+    def _export_twin(self, path: str) -> Dict[str, Any]:
+        """Write the ONNX twin of ``path`` (issue 15); a failed export is logged, never fatal:
+        the TorchScript policy is the training artefact."""
+        from .onnx_twin import export_onnx
+
+        try:
+            twin, errors = export_onnx(path)
+        except (ImportError, PolicyError) as exc:
+            self.log(f'ONNX twin not written: {exc}')
+            return {'path': None, 'error': str(exc)}
+        self.log(f'wrote {twin}: max difference to TorchScript {max(errors.values()):.2e}')
+        return {'path': str(twin), 'max_difference': max(errors.values())}
+
+    def _data_provenance(self) -> Dict[str, Any]:
+        """Data files (repository-relative) and trajectory indices; lists when several files."""
+        out = {
+            'data': [data_reference(p) for p in self.data_paths],
+            'data_file': [os.path.basename(p) for p in self.data_paths],
+            'train_trajectories': [sp['train_idx'].tolist() for sp in self.splits],
+            'val_trajectories': [sp['val_idx'].tolist() for sp in self.splits],
+        }
+        if len(self.data_paths) == 1:
+            return {k: v[0] for k, v in out.items()}
+        out['robots'] = [int(sp['train'].shape[2]) for sp in self.splits]
+        return out
+
+    def finish(self) -> Dict[str, Any]:
+        final_state = copy.deepcopy(self.policy.state_dict())
+        chosen = 'last'
+        if self.best is not None and math.isfinite(self.best['score']):
+            self.policy.load_state_dict(self.best['state'])
+            chosen = (
+                f'best rollout score (epoch {self.best["epoch"]})'
+                if self.best['epoch']
+                else 'best rollout score (epoch 0: the starting model, multistep.init)'
+            )
+        meta = self.policy.metadata(dt=self.dt)
+        meta['provenance'] = {
+            'trainer': 'training.train',
+            'config': self.cfg,
+            **self._data_provenance(),
+            **self.code,
+            'data_dt': self.data_dt,
+            'dt_ratio': self.ratio,
+            'epochs': self.epoch,
+            'selected': chosen,
+            'train_seconds': round(self.elapsed, 1),
+            'torch': torch.__version__,
+        }
+        path = os.path.join(self.out, 'policy.pt')
+        export_policy(self.policy, path, meta)
+        onnx_twin = self._export_twin(path)
+        self.policy.load_state_dict(final_state)
+        summary = {
+            'policy': path,
+            'epochs': self.epoch,
+            'selected': chosen,
+            'train_seconds': round(self.elapsed, 1),
+            'prep_seconds': round(self.prep_s, 1),
+            'train_samples': len(self.train),
+            'dropped_saturated': self.dropped,
+            'val_samples': 0 if self.val is None else len(self.val),
+            'best': None if self.best is None else {k: v for k, v in self.best.items() if k != 'state'},
+            'start_selection': self.start_selection,
+            'onnx': onnx_twin,
+        }
+        write_json(os.path.join(self.out, 'summary.json'), summary)
+        return summary
