@@ -14,7 +14,7 @@ TORCH_BUILD ?= cpu
 ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
           AMENT_PREFIX_PATH="$(VENV_PREFIX)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
 
-.PHONY: all venv test demo demo-offline bench mutation clean distclean
+.PHONY: all venv lint test demo demo-offline bench mutation clean distclean
 
 all: test
 
@@ -36,7 +36,12 @@ $(VENV)/.installed: Makefile requirements.txt requirements-robot.txt requirement
 	$(PY) -W ignore setup.py --quiet install_data --install-dir "$(VENV_PREFIX)" --force
 	@touch $@
 
-test: $(VENV)/.installed
+# ruff.toml: pyflakes, pycodestyle, import order, single quotes; the format is ruff's.
+lint: $(VENV)/.installed
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+test: $(VENV)/.installed lint
 	$(ROS_ENV) $(PY) -m pytest -q -rs tests $(PYTEST_ARGS)
 
 # The main job: the shipped flock2d policy on 10 robots, one OS process per agent plus the

@@ -358,7 +358,8 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
     ev = [e for n in s['sizes'] for e in s['escape_events'][str(n)]]
     if ev:
         lines += [
-            f'Escapes of learnt boids (inside, then outside): {len(ev)} in all; sensed neighbours within d_cr just before leaving: '
+            f'Escapes of learnt boids (inside, then outside): {len(ev)} in all; '
+            'sensed neighbours within d_cr just before leaving: '
             f'median {np.median([e["neighbours"] for e in ev]):.0f}, none in '
             f'{sum(e["neighbours"] == 0 for e in ev)}; group size median '
             f'{np.median([e["group"] for e in ev]):.0f}; back inside at the end: '

@@ -3,7 +3,8 @@
     python -m training.evaluate --policy knode_swarm_ros/policies/boids3d_unity.pt --preset published \\
         --out out/scaling3d_unity --scaling --sizes 10 20 30 40 50 60 70 80 90 --ics 15 --scaling-steps 1700
 
-:func:`training.assessment.evaluation.scaling_study` hands boids3d policies to :func:`training.assessment.scaling.scaling_study`. Per size n:
+:func:`training.assessment.evaluation.scaling_study` hands boids3d policies to
+:func:`training.assessment.scaling.scaling_study`. Per size n:
 ``ics`` spawns of the ground truth (:func:`knode_swarm_ros.core.groundtruth.simulate`: the Unity
 spawn, uniform in the ball of radius 5 inside the ±5 cube, 10 frames discarded; the boids are
 decentralised, so they are the reference at every size), the policy rolled out from each first
