@@ -81,7 +81,7 @@ def bench_tick(policy_path: str, n: int, steps: int) -> dict:
     lone = AgentLogic(AgentConfig(n // 2, ids, 'lockstep'), policy)
     small = min(n, 10)  # a lone agent in a swarm of 10 (the issue's reference tick)
     lone10 = AgentLogic(AgentConfig(small // 2, list(range(small)), 'lockstep'), policy)
-    gc.freeze()  # as the nodes do once built (nodes/executor.py)
+    gc.freeze()  # as the nodes do once built (nodes/common/executor.py)
     filing, poll, lone_poll, lone_filing, lone10_poll = [], [], [], [], []
     clock = time.thread_time  # CPU time of this thread: on a loaded machine wall time counts others' slices
     for s, frame in enumerate(frames):

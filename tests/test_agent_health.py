@@ -1,4 +1,4 @@
-"""Per-agent /diagnostics: the ROS-free judgement (knode_swarm_ros/nodes/agent_health.py)."""
+"""Per-agent /diagnostics: the ROS-free judgement (knode_swarm_ros/nodes/agent/health.py)."""
 
 import rclpy  # noqa: F401  (a broken install must fail, not skip)
 

@@ -28,7 +28,7 @@ PACKAGE = 'knode_swarm_ros'
 EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'swarm')
 REPO = Path(__file__).resolve().parents[1]
 
-# Tighten here once knode_swarm_ros/nodes/agent.py is the real node.
+# Tighten here once knode_swarm_ros/nodes/agent/node.py is the real node.
 ACCEPT_PLACEHOLDER_NODES = False
 PLACEHOLDER_EXIT_CODE = 2
 PLACEHOLDER_MESSAGE = 'node not available yet'

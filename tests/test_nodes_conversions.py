@@ -1,4 +1,4 @@
-"""The one state/command <-> message mapping (knode_swarm_ros/nodes/conversions.py).
+"""The one state/command <-> message mapping (knode_swarm_ros/nodes/common/conversions.py).
 
 Message classes are plain Python: no rclpy.init, no ROS graph.
 """

@@ -1,6 +1,6 @@
 """REP 105 Odometry: pose in the world frame, twist in the child (body) frame.
 
-The ROS-free mapping (knode_swarm_ros/nodes/odom_mapping.py) against a rotation written out
+The ROS-free mapping (knode_swarm_ros/logic/contract/rep105.py) against a rotation written out
 independently here, headings in every quadrant, and the message level: a foreign driver that
 reports its real yaw and a body-frame twist decodes to the same state as this project's own
 Odometry, in both the rclpy message and the serialized fast path.

@@ -1,4 +1,4 @@
-"""The nodes' shared log throttle and JSON report (nodes/reporting.py), without ROS."""
+"""The nodes' shared log throttle and JSON report (logic/reporting.py), without ROS."""
 
 import json
 import os

@@ -1,5 +1,5 @@
 """A node whose native clean-up hangs after everything is saved still exits, with status 0, and
-its file is whole (nodes/exit_watchdog.py, armed once in executor.run_node).
+its file is whole (nodes/common/exit_watchdog.py, armed once in executor.run_node).
 
 The flake it answers: in a suite run beside a second one, the recorder wrote its file and then
 hung while exiting (rclpy / DDS teardown), ignored SIGTERM and was SIGKILLed; the launcher failed

@@ -1,4 +1,4 @@
-"""The simulator's phases and timeouts (nodes/simulator_lifecycle.py), driven without ROS."""
+"""The simulator's phases and timeouts (logic/simulator/run_phases.py), driven without ROS."""
 
 import numpy as np
 import pytest

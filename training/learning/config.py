@@ -48,7 +48,7 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
         'max_minutes': None,
         'objective': 'one_step',
     },
-    # the multi_step objective (training/multistep.py): curriculum of horizons, from a one-step model
+    # the multi_step objective (training/learning/multistep.py): curriculum of horizons, from a one-step model
     'multistep': {
         'init': None,
         'horizons': [10, 50, 200],

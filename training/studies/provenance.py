@@ -2,7 +2,7 @@
 
     python -m training.studies.provenance knode_swarm_ros/policies/flock2d.pt --data data/flock2d.npz
 
-Policies trained before the trainer wrote relative paths (training/records.py,
+Policies trained before the trainer wrote relative paths (training/learning/records.py,
 :func:`data_reference`) carry the absolute data path of the machine they were trained on. This
 rewrites ``knode.json`` -> ``provenance.data`` of each file to ``--data`` as the repository names
 it (relative to the checkout root, else to the current directory), keeps everything else

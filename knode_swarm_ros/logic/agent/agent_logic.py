@@ -196,7 +196,7 @@ class AgentLogic:
         self.timeout_ns = int(round(config.state_timeout * 1e9))
         self.future_ns = int(round(config.future_tolerance * 1e9))
         # What this robot hears (buffer, newest stamps, receipt counters): its own, or the one its
-        # hosting process files for all its robots, which hear the same (nodes/hearing.py).
+        # hosting process files for all its robots, which hear the same (logic/agent/hearing.py).
         own_hearing = Hearing(
             self.spec.state_dim, self.ids, self.dt, self.tau, self.timeout_ns, self.future_ns
         )

@@ -118,7 +118,7 @@ class HostedAgents:
         self.policy = policy
         self.hosted: List[int] = hosted
         first = self._first = AgentLogic(replace(config, robot_id=hosted[0]), policy)
-        self.hearing = first.hearing  # what every hosted robot hears, filed once (nodes/hearing.py)
+        self.hearing = first.hearing  # what every hosted robot hears, filed once (logic/agent/hearing.py)
         self.logics: Dict[int, AgentLogic] = {hosted[0]: first}
         for rid in hosted[1:]:
             self.logics[rid] = AgentLogic(replace(config, robot_id=rid), policy, hearing=self.hearing)

@@ -79,7 +79,7 @@ def refuse_per_robot_options(node, robot_id: int, p, spec) -> None:
     :class:`ConfigError` naming it (exit status 2):
 
     * ``link_*`` (the link model): each robot would hear through its own lossy link, while the
-      robots of a process share what they hear (nodes/hearing.py);
+      robots of a process share what they hear (logic/agent/hearing.py);
     * ``managed: true``: a lifecycle is one robot's (configure, activate, brake to rest);
     * ``command_interface: unicycle``: a differential-drive robot is a real robot: run its ``agent``.
     """
