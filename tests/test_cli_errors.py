@@ -56,7 +56,11 @@ CASES = [
     ('import_unity', '{tmp}/missing.txt --out {tmp}/u.npz', 'missing.txt'),
     ('studies.compare_unity', '--unity {tmp}/missing.txt --out {tmp}/out', 'missing.txt'),
     ('studies.unity_retime', '{tmp}/missing.txt --out {tmp}/u.npz', 'missing.txt'),
-    ('studies.unity_policies', '--policy p={tmp}/missing.pt --data d={tmp}/missing.npz --out {tmp}/out', 'missing'),
+    (
+        'studies.unity_policies',
+        '--policy p={tmp}/missing.pt --data d={tmp}/missing.npz --out {tmp}/out',
+        'missing',
+    ),
     ('export_onnx', '{tmp}/missing.pt', 'missing.pt'),
     ('studies.robustness', '--policy {tmp}/missing.pt --out {tmp}/out', 'missing.pt'),
     ('studies.rate_study', '--data {tmp}/missing.npz --case 10={tmp}/missing.pt --out {tmp}/out', '--case'),

@@ -210,7 +210,8 @@ def plan_run(args: argparse.Namespace) -> Plan:
                 f'--agents-per-process {args.agents_per_process}'
             )
         per_process = 1
-    if link and not args.ground_truth:  # each agent hears through its own link: no hosting (nodes/agents/node.py)
+    # each agent hears through its own link: no hosting (nodes/agents/node.py)
+    if link and not args.ground_truth:
         if args.agents_per_process > 1:
             raise ConfigError(
                 '--link-* (the link model) runs one agent process per robot; it cannot be combined '
