@@ -47,8 +47,8 @@ setup(
     maintainer_email='maintainers@knode-swarm.dev',
     python_requires='>=3.10',
     packages=find_packages(exclude=['tests', 'tests.*', 'training', 'training.*', 'bench', 'bench.*']),
-    # Shipped, pretrained policies: found at run time through importlib.resources.
-    package_data={PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx']},
+    # Shipped, pretrained policies and scenario files: found at run time through importlib.resources.
+    package_data={PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx', 'scenarios/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),

@@ -28,6 +28,7 @@ from typing import List, Optional, Sequence
 from knode_swarm_ros.bag import ODOMETRY, BagError, open_bag
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.scenarios import get_scenario, parse_scenario_argument
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
 from training.data.bags.derive import derive_states, finite_difference, moving_average
 from training.data.bags.options import (
@@ -108,7 +109,12 @@ def build_parser() -> argparse.ArgumentParser:
         help='rosbag2 bag directory (metadata.yaml + .db3 or .mcap files), one .db3 or .mcap '
         'file, or a ROS 1 .bag file',
     )
-    p.add_argument('--scenario', required=True, choices=('flock2d', 'boids3d'))
+    p.add_argument(
+        '--scenario',
+        required=True,
+        metavar='NAME|FILE.yaml',
+        help='a shipped scenario (flock2d, boids3d) or a scenario file (docs/scenarios.md)',
+    )
     p.add_argument(
         '--topics',
         action='append',
@@ -214,8 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.heading_diff is not None and args.scenario != 'boids3d':
-        parser.error('argument --heading-diff: only for --scenario boids3d')
+    args.scenario = parse_scenario_argument(args.scenario)
+    if args.heading_diff is not None and get_scenario(args.scenario).heading is None:
+        parser.error('argument --heading-diff: only for a scenario with headings (as boids3d)')
     try:  # a failure writes nothing (save_trajectories is atomic): say so
         opts = ImportOptions(
             scenario=args.scenario,
@@ -249,7 +256,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         raise KnodeError(f'{exc}; nothing written') from None
     for line in result.summary:
         print(line)
-    print(f'wrote {args.out}: states {list(result.states.shape)} ({result.scenario}, dt {result.dt:.6g} s)')
+    name = get_scenario(result.scenario).name
+    print(f'wrote {args.out}: states {list(result.states.shape)} ({name}, dt {result.dt:.6g} s)')
     return 0
 
 

@@ -29,7 +29,7 @@ from .network import neighbour_matrices, neighbour_matrix, neighbour_matrix_rows
 from .policy_meta import PolicyError, shipped_policy_path
 from .policy_runtime import RUNTIMES, OnnxPolicy, load_runtime, onnx_twin_path
 from .rollout import rollout, zoh_step
-from .scenarios import SCENARIOS, Scenario, get_scenario
+from .scenarios import SCENARIOS, Scenario, ScenarioError, get_scenario, scenario_ref
 from .trajectory import (
     TrajectoryError,
     TrajectoryFile,
@@ -62,7 +62,9 @@ __all__ = sorted(
         'zoh_step',
         'SCENARIOS',
         'Scenario',
+        'ScenarioError',
         'get_scenario',
+        'scenario_ref',
         'TrajectoryError',
         'TrajectoryFile',
         'load_trajectories',

@@ -184,7 +184,7 @@ class KNODEPolicy(nn.Module):
         spec = get_scenario(self.config.scenario)
         meta = {
             'format': 'knode-policy/1',
-            'scenario': spec.name,
+            'scenario': spec.name if spec.shipped else spec.to_dict(),
             'state_dim': spec.state_dim,
             'command_dim': spec.command_dim,
             'command': spec.command,

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Union
 
 from .errors import KnodeError
-from .scenarios import SCENARIOS, get_scenario
+from .scenarios import SCENARIOS, ScenarioError, get_scenario
 
 __all__ = [
     'PolicyError',
@@ -29,6 +29,7 @@ __all__ = [
     'BOUNDS',
     'check_meta',
     'parse_meta',
+    'meta_scenario',
     'read_pt_meta',
     'shipped_policy_path',
 ]
@@ -99,17 +100,12 @@ def check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) -
     missing = [key for key in REQUIRED_KEYS if key not in meta]
     if missing:
         raise PolicyError(f'{where}: knode.json lacks required key(s) {", ".join(missing)}')
-    for key in ('format', 'scenario', 'command'):
+    for key in ('format', 'command'):
         if not isinstance(meta[key], str):
             raise PolicyError(f'{where}: knode.json key {key!r} must be a string, got {meta[key]!r}')
     if meta['format'] != FORMAT:
         raise PolicyError(f"{where}: knode.json key 'format' is {meta['format']!r}, expected {FORMAT!r}")
-    if meta['scenario'] not in SCENARIOS:
-        raise PolicyError(
-            f"{where}: knode.json key 'scenario' is {meta['scenario']!r}; "
-            f'known: {", ".join(sorted(SCENARIOS))}'
-        )
-    spec = get_scenario(meta['scenario'])
+    spec = meta_scenario(where, meta)
     wanted = {
         'state_dim': spec.state_dim,
         'command_dim': spec.command_dim,
@@ -145,13 +141,42 @@ def check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) -
         if value is None:
             continue
         got = meta.get(key)
-        same = (
-            math.isclose(float(got), float(value), rel_tol=1e-9)
-            if _is_num(got) and _is_num(value)
-            else got == value
-        )
+        if key == 'scenario':
+            same = spec == _expected_scenario(value)
+        elif _is_num(got) and _is_num(value):
+            same = math.isclose(float(got), float(value), rel_tol=1e-9)
+        else:
+            same = got == value
         if not same:
             raise PolicyMismatchError(where, key, got, value)
+
+
+def meta_scenario(where: str, meta: Dict[str, Any]):
+    """The :class:`~.scenarios.Scenario` of a knode.json object: key ``scenario`` holds a shipped
+    scenario's name or the whole scenario as a JSON object; anything else raises PolicyError."""
+    value = meta.get('scenario')
+    if not isinstance(value, (str, dict)):
+        raise PolicyError(
+            f"{where}: knode.json key 'scenario' must be a scenario name or object, got {value!r}"
+        )
+    if isinstance(value, str) and value not in SCENARIOS:  # a policy names no file: it carries the object
+        raise PolicyError(
+            f"{where}: knode.json key 'scenario' is {value!r}; known: {', '.join(sorted(SCENARIOS))}, "
+            'or the whole scenario as a JSON object'
+        )
+    try:
+        return get_scenario(value)
+    except ScenarioError as exc:
+        raise PolicyError(f"{where}: knode.json key 'scenario': {exc}") from None
+
+
+def _expected_scenario(value: Any):
+    """A caller's required scenario (a reference), or the value itself when it is no scenario
+    (then it equals no policy's scenario)."""
+    try:
+        return get_scenario(value)
+    except ScenarioError:
+        return value
 
 
 def parse_meta(where: str, text: Union[str, bytes, None]) -> Dict[str, Any]:

@@ -24,6 +24,7 @@ from typing import Any, Dict, Optional, Union
 import numpy as np
 
 from .policy_meta import PolicyError, check_meta, parse_meta, read_pt_meta
+from .scenarios import scenario_ref
 
 __all__ = [
     'RUNTIMES',
@@ -68,7 +69,8 @@ class PolicyView:
 
     @property
     def scenario(self) -> str:
-        return str(self.meta['scenario'])
+        """The scenario's reference (:func:`~.scenarios.scenario_ref`): its name if shipped."""
+        return scenario_ref(self.meta['scenario'])
 
     @property
     def command_limit(self) -> Optional[float]:

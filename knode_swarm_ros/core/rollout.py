@@ -4,7 +4,11 @@ At each step every robot builds its neighbour matrix, the policy is evaluated on
 robot, and the command is held over the step (zero-order hold), integrated exactly:
 
 * double integrator (``acceleration``): p += v dt + c dt^2 / 2, v += c dt;
-* first order (``velocity``): p += c dt, h = c / |c| (h unchanged when c = 0).
+* first order (``velocity``): p += c dt; with a heading in the state (``position_heading``)
+  h = c / |c| (h unchanged when c = 0).
+
+Which applies, and in how many dimensions, follows the scenario object (its ``command``, ``state``
+and ``dimensions``), never its name.
 
 The simulator node and the parity tests use :func:`zoh_step`; offline evaluation uses
 :func:`rollout`, batched over several swarms at once.
@@ -12,7 +16,7 @@ The simulator node and the parity tests use :func:`zoh_step`; offline evaluation
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Any, Callable, Mapping, Optional, Union
 
 import numpy as np
 
@@ -24,6 +28,9 @@ __all__ = ['zoh_step', 'zoh_step_torch', 'rollout', 'rollout_torch', 'policy_com
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+# A Scenario, a shipped name, a scenario file's path or the scenario's mapping (get_scenario).
+ScenarioRef = Union[str, Mapping[str, Any], Scenario]
 
 _POLICY_LIMIT = object()  # rollout's default: the policy's own ``command_limit`` attribute, if any
 
@@ -39,6 +46,8 @@ def zoh_step(states: np.ndarray, command: np.ndarray, scenario: Scenario, dt: fl
         new[..., scenario.velocity] = v + c * dt
     else:
         new[..., p] = new[..., p] + c * dt
+        if scenario.heading is None:
+            return new
         speed = np.linalg.norm(c, axis=-1, keepdims=True)
         moving = speed > 0
         heading = np.divide(c, speed, out=np.zeros_like(c), where=moving)
@@ -55,6 +64,8 @@ def zoh_step_torch(z, command, scenario: Scenario, dt: float):
     if scenario.command == 'acceleration':
         v = z[..., p:]
         return torch.cat([z[..., :p] + v * dt + 0.5 * command * dt * dt, v + command * dt], dim=-1)
+    if scenario.heading is None:
+        return z[..., :p] + command * dt
     return torch.cat([z[..., :p] + command * dt, heading_torch(command, z[..., p:])], dim=-1)
 
 
@@ -88,7 +99,7 @@ def rollout(
     policy: PolicyFn,
     z0: np.ndarray,
     steps: int,
-    scenario: str,
+    scenario: ScenarioRef,
     d_cr: float,
     k: int,
     tau: int,
@@ -102,6 +113,7 @@ def rollout(
         policy: ``(Y [B, k, d], mask [B, k]) -> [B, m]``, e.g. a :class:`LoadedPolicy`.
         z0: ``[n, d]`` or ``[S, n, d]`` initial states of one or S swarms (any n).
         steps: number of steps; the result holds ``steps + 1`` frames, frame 0 = z0.
+        scenario: a :class:`Scenario` or any reference :func:`get_scenario` resolves.
         tau: delay in steps; before t - tau exists the earliest frame is used.
         progress: optional callback called with the step index after each step.
         command_limit: per-axis saturation of every command (None: none); by default the
@@ -134,7 +146,7 @@ def rollout(
 
 
 def rollout_torch(
-    policy, z0, steps: int, scenario: str, d_cr: float, k: int, tau: int, dt: float, history=None
+    policy, z0, steps: int, scenario: ScenarioRef, d_cr: float, k: int, tau: int, dt: float, history=None
 ):
     """:func:`rollout` for torch, differentiable: training through the deployment semantics.
 

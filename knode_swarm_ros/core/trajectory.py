@@ -1,7 +1,8 @@
 """Trajectory files (docs/DESIGN.md, "Trajectory files"): read, validate and write atomically.
 
 A file is an ``.npz`` with ``states`` float64 ``[trajectories, T, n, d]`` (T >= 1),
-``dt`` (float), ``scenario`` (string) and ``meta`` (a JSON string).
+``dt`` (float), ``scenario`` (string: a shipped scenario's name, or the whole scenario as a JSON
+object, see :func:`~.scenarios.scenario_ref`) and ``meta`` (a JSON string).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any, Dict, Optional, Tuple, Union
 import numpy as np
 
 from .errors import KnodeError
-from .scenarios import get_scenario
+from .scenarios import SCENARIOS, Scenario, ScenarioError, get_scenario, scenario_ref
 
 __all__ = [
     'TrajectoryFile',
@@ -42,7 +43,8 @@ class TrajectoryFile:
     Attributes:
         states: float64 ``[trajectories, T, n, d]``.
         dt: seconds between frames.
-        scenario: scenario name.
+        scenario: the scenario's reference: its name if shipped, else its JSON object's text
+            (:func:`~.scenarios.get_scenario` resolves either; :attr:`spec` is the resolved one).
         meta: free-form metadata (generator, parameters, seeds, ``split`` with train/test indices).
     """
 
@@ -50,6 +52,10 @@ class TrajectoryFile:
     dt: float
     scenario: str
     meta: Dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def spec(self) -> Scenario:
+        return get_scenario(self.scenario)
 
     def split(self, name: str) -> np.ndarray:
         """Indices of the trajectories in split ``name`` (``train`` or ``test``) from ``meta['split']``;
@@ -88,11 +94,15 @@ def _scalar(where: str, name: str, value: np.ndarray, what: str, kinds: str):
     return str(value) if kinds == 'U' else float(value)
 
 
-def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
+def _resolve(where: str, scenario) -> Scenario:
     try:
-        spec = get_scenario(scenario)
-    except ValueError as exc:
+        return get_scenario(scenario)
+    except ScenarioError as exc:
         raise TrajectoryError(f"{where}: field 'scenario': {exc}") from None
+
+
+def _validate(where: str, states: np.ndarray, dt: float, scenario) -> None:
+    spec = _resolve(where, scenario)
     if states.ndim != 4:
         raise TrajectoryError(
             f"{where}: field 'states' must be [trajectories, T, n, d], got shape {states.shape}"
@@ -101,7 +111,7 @@ def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
         raise TrajectoryError(f"{where}: field 'states' has an empty axis, shape {states.shape}")
     if states.shape[3] != spec.state_dim:
         raise TrajectoryError(
-            f"{where}: field 'states' has d = {states.shape[3]}, scenario {scenario} "
+            f"{where}: field 'states' has d = {states.shape[3]}, scenario {spec.name} "
             f'needs d = {spec.state_dim} ({", ".join(spec.state_layout)})'
         )
     if not np.all(np.isfinite(states)):
@@ -114,11 +124,14 @@ def _validate(where: str, states: np.ndarray, dt: float, scenario: str) -> None:
 
 
 def save_trajectories(
-    path: PathLike, states: np.ndarray, dt: float, scenario: str, meta: Optional[Dict[str, Any]] = None
+    path: PathLike, states: np.ndarray, dt: float, scenario, meta: Optional[Dict[str, Any]] = None
 ) -> None:
-    """Validate and write a trajectory file atomically (temporary file, then rename)."""
+    """Validate and write a trajectory file atomically (temporary file, then rename);
+    ``scenario`` is any reference :func:`~.scenarios.get_scenario` resolves (the file carries a
+    shipped scenario's name, else the whole scenario)."""
     states = np.asarray(states, dtype=np.float64)
     _validate(str(path), states, float(dt), scenario)
+    scenario = scenario_ref(scenario)
     meta_json = json.dumps(meta or {}, sort_keys=True)
 
     def write(tmp):
@@ -130,8 +143,9 @@ def save_trajectories(
     atomic_write(path, write)
 
 
-def load_trajectories(path: PathLike, scenario: Optional[str] = None) -> TrajectoryFile:
-    """Read and validate a trajectory file; with ``scenario`` given, refuse another scenario."""
+def load_trajectories(path: PathLike, scenario=None) -> TrajectoryFile:
+    """Read and validate a trajectory file; with ``scenario`` given (any reference), refuse another
+    scenario."""
     where = str(path)
     if not os.path.isfile(path):
         raise TrajectoryError(f'{where}: no such file')
@@ -154,9 +168,15 @@ def load_trajectories(path: PathLike, scenario: Optional[str] = None) -> Traject
         raise TrajectoryError(f"{where}: field 'meta' is not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise TrajectoryError(f"{where}: field 'meta' must be a JSON object, got {type(meta).__name__}")
+    if name not in SCENARIOS and not name.lstrip().startswith('{'):  # a file names no other file
+        raise TrajectoryError(
+            f"{where}: field 'scenario' is {name!r}; known: {', '.join(sorted(SCENARIOS))}, "
+            'or the whole scenario as a JSON object'
+        )
     _validate(where, states, dt, name)
-    if scenario is not None and name != scenario:
-        raise TrajectoryError(f"{where}: field 'scenario' is {name!r}, expected {scenario!r}")
+    name = scenario_ref(name)
+    if scenario is not None and get_scenario(name) != _resolve('expected scenario', scenario):
+        raise TrajectoryError(f"{where}: field 'scenario' is {name!r}, expected {scenario_ref(scenario)!r}")
     return TrajectoryFile(states, dt, name, meta)
 
 

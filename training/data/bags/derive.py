@@ -1,4 +1,5 @@
-"""What the bag lacks, derived on the grid: velocities (flock2d) and unit headings (boids3d), from
+"""What the bag lacks, derived on the grid: velocities (``position_velocity``, as flock2d) and unit
+headings (``position_heading``, as boids3d), from
 finite differences, the Odometry twist or the pose orientation (docs/import_bag.md)."""
 from __future__ import annotations
 
@@ -80,6 +81,8 @@ def derive_states(seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, d
                 out[:, i, c] = np.interp(seg_t, r.t, lin[:, c])
         return out
 
+    if spec.state == "position":  # nothing to derive
+        return pos, None
     if spec.velocity is not None:  # flock2d
         if opts.use_twist:
             vel = interp_twist()[:, :, :p]

@@ -43,6 +43,8 @@ def message_counts(robots: List[Robot], tl: Timeline, traj_meta, T: int, dt: flo
 def derivation(opts: ImportOptions, notes: List[str]) -> Dict[str, Any]:
     """Where the velocities or headings came from, and the smoothing applied."""
     spec = get_scenario(opts.scenario)
+    if spec.state == "position":
+        return {"nothing": "the state is the position alone"}
     if spec.velocity is not None:
         derived = {"velocity": "Odometry twist.twist.linear (" + opts.twist_frame + " frame), linear interpolation"
                    if opts.use_twist else "central differences of the resampled positions (second-order one-sided "
