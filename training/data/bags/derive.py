@@ -1,6 +1,7 @@
 """What the bag lacks, derived on the grid: velocities (``position_velocity``, as flock2d) and unit
 headings (``position_heading``, as boids3d), from
 finite differences, the Odometry twist or the pose orientation (docs/import_bag.md)."""
+
 from __future__ import annotations
 
 from typing import List, Optional, Tuple
@@ -13,7 +14,8 @@ from knode_swarm_ros.core import get_scenario
 from .options import ImportOptions
 from .robots import Robot
 
-__all__ = ["finite_difference", "moving_average", "derive_states"]
+__all__ = ['finite_difference', 'moving_average', 'derive_states']
+
 
 def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
     """Velocities ``[L, ...]`` from positions ``p[L, ...]`` sampled every ``dt`` (L >= 3).
@@ -21,14 +23,14 @@ def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
     ``central``: (p[k+1] - p[k-1]) / (2 dt) inside, second-order one-sided at both ends
     (``numpy.gradient(edge_order=2)``). ``backward``: (p[k] - p[k-1]) / dt, frame 0 takes frame 1's.
     """
-    if scheme == "central":
+    if scheme == 'central':
         return np.gradient(p, dt, axis=0, edge_order=2)
-    if scheme == "backward":
+    if scheme == 'backward':
         v = np.empty_like(p)
         v[1:] = (p[1:] - p[:-1]) / dt
         v[0] = v[1]
         return v
-    raise ValueError(f"unknown difference scheme {scheme!r}")
+    raise ValueError(f'unknown difference scheme {scheme!r}')
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
@@ -45,25 +47,29 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def _smooth(v: np.ndarray, opts: ImportOptions, notes: List[str], label: str) -> np.ndarray:
-    if opts.smooth == "none":
+    if opts.smooth == 'none':
         return v
     L = v.shape[0]
     window = min(opts.smooth_window, L if L % 2 else L - 1)
     if window != opts.smooth_window:
-        notes.append(f"{label}: {L} frames, smoothing window shrunk to {window}")
-    if opts.smooth == "moving-average":
+        notes.append(f'{label}: {L} frames, smoothing window shrunk to {window}')
+    if opts.smooth == 'moving-average':
         return moving_average(v, window)
     try:
         from scipy.signal import savgol_filter
     except ImportError:
-        raise BagError("--smooth savgol needs scipy (pip install scipy), or use --smooth moving-average") from None
+        raise BagError(
+            '--smooth savgol needs scipy (pip install scipy), or use --smooth moving-average'
+        ) from None
     if window <= opts.smooth_order:
-        notes.append(f"{label}: too short for a Savitzky-Golay window; not smoothed")
+        notes.append(f'{label}: too short for a Savitzky-Golay window; not smoothed')
         return v
-    return savgol_filter(v, window, opts.smooth_order, axis=0, mode="interp")
+    return savgol_filter(v, window, opts.smooth_order, axis=0, mode='interp')
 
-def derive_states(seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, dt: float, notes: List[str],
-            label: str) -> Tuple[Optional[np.ndarray], Optional[str]]:
+
+def derive_states(
+    seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, dt: float, notes: List[str], label: str
+) -> Tuple[Optional[np.ndarray], Optional[str]]:
     """States ``[L, n, d]`` on the grid times ``seg_t``, or (None, reason) when undefined."""
     spec = get_scenario(opts.scenario)
     p = spec.position_dim
@@ -76,18 +82,18 @@ def derive_states(seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, d
     def interp_twist() -> np.ndarray:
         out = np.empty((L, n, 3))
         for i, r in enumerate(robots):
-            lin = r.lin if opts.twist_frame == "world" else rotate_by_quaternion(r.quat, r.lin)
+            lin = r.lin if opts.twist_frame == 'world' else rotate_by_quaternion(r.quat, r.lin)
             for c in range(3):
                 out[:, i, c] = np.interp(seg_t, r.t, lin[:, c])
         return out
 
-    if spec.state == "position":  # nothing to derive
+    if spec.state == 'position':  # nothing to derive
         return pos, None
     if spec.velocity is not None:  # flock2d
         if opts.use_twist:
             vel = interp_twist()[:, :, :p]
         else:
-            vel = _smooth(finite_difference(pos, dt, "central"), opts, notes, label)
+            vel = _smooth(finite_difference(pos, dt, 'central'), opts, notes, label)
         return np.concatenate([pos, vel], axis=2), None
 
     # boids3d headings
@@ -98,23 +104,30 @@ def derive_states(seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, d
             for c in range(3):
                 head[:, i, c] = np.interp(seg_t, r.t, h_raw[:, c])
             norm = np.linalg.norm(head[:, i], axis=1)
-            bad = norm < 1e-6   # antipodal headings on both sides: take the nearer sample
+            bad = norm < 1e-6  # antipodal headings on both sides: take the nearer sample
             if np.any(bad):
                 idx = np.clip(np.searchsorted(r.t, seg_t[bad]), 1, r.t.size - 1)
-                nearer = np.where(np.abs(r.t[idx - 1] - seg_t[bad]) <= np.abs(r.t[idx] - seg_t[bad]), idx - 1, idx)
+                nearer = np.where(
+                    np.abs(r.t[idx - 1] - seg_t[bad]) <= np.abs(r.t[idx] - seg_t[bad]), idx - 1, idx
+                )
                 head[bad, i] = h_raw[nearer]
                 norm[bad] = 1.0
             head[:, i] /= norm[:, None]
         return np.concatenate([pos, head], axis=2), None
-    vel = interp_twist() if opts.use_twist else _smooth(finite_difference(pos, dt, opts.heading_diff), opts,
-                                                          notes, label)
+    vel = (
+        interp_twist()
+        if opts.use_twist
+        else _smooth(finite_difference(pos, dt, opts.heading_diff), opts, notes, label)
+    )
     speed = np.linalg.norm(vel, axis=2)
     head = np.empty_like(vel)
     for i, r in enumerate(robots):
         valid = speed[:, i] > opts.min_speed
         if not np.any(valid):
-            return None, (f"{r.label} never moves faster than --min-speed {opts.min_speed} m/s, so its heading "
-                          f"is undefined (try --use-orientation)")
+            return None, (
+                f'{r.label} never moves faster than --min-speed {opts.min_speed} m/s, so its heading '
+                f'is undefined (try --use-orientation)'
+            )
         idx = np.nonzero(valid)[0]
         nearest = idx[np.clip(np.searchsorted(idx, np.arange(L)), 0, idx.size - 1)]
         prev = idx[np.clip(np.searchsorted(idx, np.arange(L)) - 1, 0, idx.size - 1)]
@@ -122,8 +135,8 @@ def derive_states(seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, d
         nearest = np.where(valid, np.arange(L), nearest)
         head[:, i] = vel[nearest, i] / speed[nearest, i][:, None]
         if not np.all(valid):
-            notes.append(f"{label}: {r.label}: {int((~valid).sum())} frame(s) slower than --min-speed take the "
-                         f"nearest valid heading")
+            notes.append(
+                f'{label}: {r.label}: {int((~valid).sum())} frame(s) slower than --min-speed take the '
+                f'nearest valid heading'
+            )
     return np.concatenate([pos, head], axis=2), None
-
-

@@ -1,4 +1,5 @@
 """The robots of a bag: which topics or TF child frames they are, their ids, their checked samples."""
+
 from __future__ import annotations
 
 import fnmatch
@@ -12,21 +13,22 @@ from knode_swarm_ros.bag import SUPPORTED_TYPES, TF_MESSAGE, BagError, Sample, s
 
 from .options import ImportOptions
 
-__all__ = ["Robot", "read_robots", "robot_id"]
+__all__ = ['Robot', 'read_robots', 'robot_id']
+
 
 @dataclass
 class Robot:
     """One robot's samples: raw while reading (``samples``), then as arrays (:func:`finalise`)."""
 
     id: int
-    name: str                  # topic, or child frame for TF
+    name: str  # topic, or child frame for TF
     topic: str
     type_name: str
-    ns: np.ndarray = None      # int64 stamps, strictly increasing
-    pos: np.ndarray = None     # [m, 3]
-    quat: np.ndarray = None    # [m, 4] (x, y, z, w)
-    lin: Optional[np.ndarray] = None   # [m, 3] twist.linear or None
-    t: np.ndarray = None       # float seconds since t0
+    ns: np.ndarray = None  # int64 stamps, strictly increasing
+    pos: np.ndarray = None  # [m, 3]
+    quat: np.ndarray = None  # [m, 4] (x, y, z, w)
+    lin: Optional[np.ndarray] = None  # [m, 3] twist.linear or None
+    t: np.ndarray = None  # float seconds since t0
     read: int = 0
     duplicates: int = 0
     non_finite: int = 0
@@ -35,15 +37,20 @@ class Robot:
 
     @property
     def label(self) -> str:
-        return f"robot {self.id} ({self.name})" if self.name == self.topic else \
-            f"robot {self.id} (frame {self.name} on {self.topic})"
+        return (
+            f'robot {self.id} ({self.name})'
+            if self.name == self.topic
+            else f'robot {self.id} (frame {self.name} on {self.topic})'
+        )
 
 
 def robot_id(name: str, label: str) -> int:
-    m = re.search(r"\d+", name)
+    m = re.search(r'\d+', name)
     if m is None:
-        raise BagError(f"{label} {name}: no integer in the name to take as the robot id; give one with "
-                       f"--id-map {name}=ID")
+        raise BagError(
+            f'{label} {name}: no integer in the name to take as the robot id; give one with '
+            f'--id-map {name}=ID'
+        )
     return int(m.group())
 
 
@@ -51,30 +58,40 @@ def select_topics(bag, opts: ImportOptions, notes: List[str]):
     """Matched topics and the robot sources on them: ``(topics, {source name: robot id}, tf)``."""
     topics = bag.topics()
     if opts.frames:
-        patterns = opts.topics or ["/tf"]
+        patterns = opts.topics or ['/tf']
     elif opts.topics:
         patterns = opts.topics
     elif opts.id_map:
         patterns = sorted(opts.id_map)
     else:
-        raise BagError("say which topics hold the robots: --topics GLOB (e.g. '/robot_*/odom'), --frames GLOB "
-                       "for /tf, or --id-map")
+        raise BagError(
+            "say which topics hold the robots: --topics GLOB (e.g. '/robot_*/odom'), --frames GLOB "
+            'for /tf, or --id-map'
+        )
     matched = sorted(t for t in topics if any(fnmatch.fnmatchcase(t, p) for p in patterns))
     if not matched:
-        listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
-        raise BagError(f"{bag.path}: topic pattern {' '.join(patterns)!s} matches no topic; the bag has: {listing}")
+        listing = ', '.join(f'{t} ({ty})' for t, ty in sorted(topics.items())) or 'none'
+        raise BagError(
+            f'{bag.path}: topic pattern {" ".join(patterns)!s} matches no topic; the bag has: {listing}'
+        )
     for t in matched:
         if topics[t] not in SUPPORTED_TYPES:
-            raise BagError(f"{bag.path}: topic {t} carries {topics[t]}, which is not supported "
-                           f"(supported: {', '.join(SUPPORTED_TYPES)}); narrow --topics")
+            raise BagError(
+                f'{bag.path}: topic {t} carries {topics[t]}, which is not supported '
+                f'(supported: {", ".join(SUPPORTED_TYPES)}); narrow --topics'
+            )
     tf_topics = [t for t in matched if topics[t] == TF_MESSAGE]
     if opts.frames and len(tf_topics) != len(matched):
         other = [t for t in matched if t not in tf_topics]
-        raise BagError(f"{bag.path}: --frames selects child frames of {TF_MESSAGE} topics, but {other[0]} "
-                       f"carries {topics[other[0]]}")
+        raise BagError(
+            f'{bag.path}: --frames selects child frames of {TF_MESSAGE} topics, but {other[0]} '
+            f'carries {topics[other[0]]}'
+        )
     if tf_topics and not opts.frames:
-        raise BagError(f"{bag.path}: topic {tf_topics[0]} is {TF_MESSAGE}; say which child frames are robots "
-                       f"with --frames GLOB")
+        raise BagError(
+            f'{bag.path}: topic {tf_topics[0]} is {TF_MESSAGE}; say which child frames are robots '
+            f'with --frames GLOB'
+        )
     return matched, topics, bool(opts.frames)
 
 
@@ -94,7 +111,7 @@ def read_robots(bag, opts: ImportOptions, notes: List[str]) -> Tuple[List[Robot]
 
     for path, topic, type_name, log_ns, msg in bag.messages(matched):
         if type_name not in SUPPORTED_TYPES:
-            raise BagError(f"{path}: topic {topic} carries {type_name}, which is not supported")
+            raise BagError(f'{path}: topic {topic} carries {type_name}, which is not supported')
         for child, sample in samples_of(type_name, msg, log_ns):
             name = child if tf else topic
             if not wanted(name):
@@ -102,42 +119,62 @@ def read_robots(bag, opts: ImportOptions, notes: List[str]) -> Tuple[List[Robot]
                 continue
             robot = robots.get(name)
             if robot is None:
-                rid = opts.id_map[name] if opts.id_map is not None else robot_id(name, "frame" if tf else "topic")
+                rid = (
+                    opts.id_map[name]
+                    if opts.id_map is not None
+                    else robot_id(name, 'frame' if tf else 'topic')
+                )
                 robot = robots[name] = Robot(rid, name, topic, type_name)
             elif robot.topic != topic:
-                raise BagError(f"{path}: frame {name} appears on both {robot.topic} and {topic}; narrow --topics")
+                raise BagError(
+                    f'{path}: frame {name} appears on both {robot.topic} and {topic}; narrow --topics'
+                )
             robot.samples.append(sample)
 
     if opts.id_map is not None:
         missing = [(n, i) for n, i in opts.id_map.items() if n not in robots]
         if missing:
             n, i = missing[0]
-            where = "child frame" if tf else "topic"
-            raise BagError(f"{bag.path}: robot {i} of --id-map ({where} {n}) never appears among the matched "
-                           f"{where}s (topics: {', '.join(matched)})")
+            where = 'child frame' if tf else 'topic'
+            raise BagError(
+                f'{bag.path}: robot {i} of --id-map ({where} {n}) never appears among the matched '
+                f'{where}s (topics: {", ".join(matched)})'
+            )
     for t in matched:
         if not tf and t not in robots and t not in ignored:
             if opts.id_map is None:
-                raise BagError(f"{bag.path}: topic {t} matches but holds no message (robot "
-                               f"{robot_id(t, 'topic')} never appears)")
+                raise BagError(
+                    f'{bag.path}: topic {t} matches but holds no message (robot '
+                    f'{robot_id(t, "topic")} never appears)'
+                )
     if not robots:
-        raise BagError(f"{bag.path}: no child frame matching {' '.join(opts.frames or [])} on "
-                       f"{', '.join(matched)}; frames seen: {', '.join(sorted(ignored)) or 'none'}")
+        raise BagError(
+            f'{bag.path}: no child frame matching {" ".join(opts.frames or [])} on '
+            f'{", ".join(matched)}; frames seen: {", ".join(sorted(ignored)) or "none"}'
+        )
     by_id: Dict[int, Robot] = {}
     for r in robots.values():
         if r.id in by_id:
-            raise BagError(f"{bag.path}: {by_id[r.id].name} and {r.name} both give robot id {r.id}; use --id-map")
+            raise BagError(
+                f'{bag.path}: {by_id[r.id].name} and {r.name} both give robot id {r.id}; use --id-map'
+            )
         by_id[r.id] = r
 
     for r in robots.values():
         finalise(r, opts)
     frames = sorted({f for r in robots.values() for f in r.frame_ids})
     if len(frames) > 1:
-        detail = "; ".join(f"{r.name}: {', '.join(sorted(r.frame_ids))}" for r in robots.values())
-        raise BagError(f"{bag.path}: the robots' poses are given in different frames ({detail}); positions "
-                       f"must share one world frame")
-    info = {"matched_topics": matched, "types": {t: topics[t] for t in matched},
-            "ignored_sources": ignored, "frame_id": frames[0] if frames else ""}
+        detail = '; '.join(f'{r.name}: {", ".join(sorted(r.frame_ids))}' for r in robots.values())
+        raise BagError(
+            f"{bag.path}: the robots' poses are given in different frames ({detail}); positions "
+            f'must share one world frame'
+        )
+    info = {
+        'matched_topics': matched,
+        'types': {t: topics[t] for t in matched},
+        'ignored_sources': ignored,
+        'frame_id': frames[0] if frames else '',
+    }
     return [by_id[i] for i in sorted(by_id)], info
 
 
@@ -145,15 +182,17 @@ def finalise(r: Robot, opts: ImportOptions) -> None:
     """Check one robot's samples and keep the usable ones as arrays (stamps strictly increasing)."""
     samples, r.samples = r.samples, []
     r.read = len(samples)
-    where = f"{r.topic}" + ("" if r.name == r.topic else f" (frame {r.name})")
-    ns = np.array([s.stamp_ns if opts.stamp == "header" else s.log_ns for s in samples], dtype=np.int64)
-    if opts.stamp == "header" and np.all(ns == 0):
-        raise BagError(f"{where}: every header.stamp is zero; use --stamp log to take the recording time")
+    where = f'{r.topic}' + ('' if r.name == r.topic else f' (frame {r.name})')
+    ns = np.array([s.stamp_ns if opts.stamp == 'header' else s.log_ns for s in samples], dtype=np.int64)
+    if opts.stamp == 'header' and np.all(ns == 0):
+        raise BagError(f'{where}: every header.stamp is zero; use --stamp log to take the recording time')
     back = np.nonzero(np.diff(ns) < 0)[0]
     if back.size:
         k = int(back[0]) + 1
-        raise BagError(f"{where}: {opts.stamp} stamps go backwards at message {k} "
-                       f"({ns[k - 1]} ns then {ns[k]} ns, {(ns[k - 1] - ns[k]) * 1e-9:.6f} s earlier)")
+        raise BagError(
+            f'{where}: {opts.stamp} stamps go backwards at message {k} '
+            f'({ns[k - 1]} ns then {ns[k]} ns, {(ns[k - 1] - ns[k]) * 1e-9:.6f} s earlier)'
+        )
     pos = np.array([s.position for s in samples], dtype=np.float64).reshape(-1, 3)
     quat = np.array([s.orientation for s in samples], dtype=np.float64).reshape(-1, 4)
     lin = None
@@ -163,7 +202,7 @@ def finalise(r: Robot, opts: ImportOptions) -> None:
     keep[1:] = np.diff(ns) > 0
     r.duplicates = int((~keep).sum())
     finite = np.all(np.isfinite(pos), axis=1)
-    if opts.use_orientation or (opts.use_twist and opts.twist_frame == "body"):
+    if opts.use_orientation or (opts.use_twist and opts.twist_frame == 'body'):
         finite &= np.all(np.isfinite(quat), axis=1) & (np.linalg.norm(np.nan_to_num(quat), axis=1) > 1e-9)
     if opts.use_twist and lin is not None:
         finite &= np.all(np.isfinite(lin), axis=1)
@@ -173,4 +212,4 @@ def finalise(r: Robot, opts: ImportOptions) -> None:
     r.lin = lin[keep] if lin is not None else None
     r.frame_ids = {s.frame_id for s, k in zip(samples, keep) if k}
     if r.ns.size < 2:
-        raise BagError(f"{where}: only {r.ns.size} usable message(s) for {r.label}; nothing to interpolate")
+        raise BagError(f'{where}: only {r.ns.size} usable message(s) for {r.label}; nothing to interpolate')

@@ -1,5 +1,6 @@
 """Where and when the robots are observed together: the time base, the gaps, the segments on the
 output grid, and the equal-length windows cut from them (docs/import_bag.md, "Resampling")."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,7 +13,7 @@ from knode_swarm_ros.bag import BagError
 from .options import GAP_FACTOR, ImportOptions
 from .robots import Robot
 
-__all__ = ["Timeline", "timeline", "segments", "windows"]
+__all__ = ['Timeline', 'timeline', 'segments', 'windows']
 
 Interval = Tuple[float, float]
 
@@ -22,11 +23,11 @@ class Timeline:
     """The time base (seconds after ``t0_ns``) and where every robot is observed (``common``)."""
 
     t0_ns: int
-    medians: Dict[int, float]         # robot id -> median message interval (s)
+    medians: Dict[int, float]  # robot id -> median message interval (s)
     max_gap: float
     gap_rule: str
-    gaps: List[Dict[str, Any]]        # every silent stretch of every robot
-    common: List[Interval]            # maximal stretches where all robots are observed
+    gaps: List[Dict[str, Any]]  # every silent stretch of every robot
+    common: List[Interval]  # maximal stretches where all robots are observed
 
     @property
     def anchor(self) -> float:
@@ -57,9 +58,11 @@ def timeline(robots: List[Robot], max_gap: Optional[float], where) -> Timeline:
     medians = {r.id: float(np.median(np.diff(r.t))) for r in robots}
     if max_gap is None:
         max_gap = GAP_FACTOR * max(medians.values())
-        gap_rule = f"{GAP_FACTOR:g} x the slowest robot's median message interval ({max(medians.values()):.6g} s)"
+        gap_rule = (
+            f"{GAP_FACTOR:g} x the slowest robot's median message interval ({max(medians.values()):.6g} s)"
+        )
     else:
-        max_gap, gap_rule = float(max_gap), "--max-gap"
+        max_gap, gap_rule = float(max_gap), '--max-gap'
     gaps, common = [], None
     for r in robots:
         d = np.diff(r.t)
@@ -68,18 +71,34 @@ def timeline(robots: List[Robot], max_gap: Optional[float], where) -> Timeline:
         ends = np.concatenate([cut, [r.t.size - 1]])
         intervals = [(float(r.t[a]), float(r.t[b])) for a, b in zip(starts, ends)]
         for k in cut:
-            gaps.append({"robot": r.id, "source": r.name, "from": float(r.t[k]), "to": float(r.t[k + 1]),
-                         "duration": float(d[k]), "from_ns": int(r.ns[k]), "to_ns": int(r.ns[k + 1])})
+            gaps.append(
+                {
+                    'robot': r.id,
+                    'source': r.name,
+                    'from': float(r.t[k]),
+                    'to': float(r.t[k + 1]),
+                    'duration': float(d[k]),
+                    'from_ns': int(r.ns[k]),
+                    'to_ns': int(r.ns[k + 1]),
+                }
+            )
         common = intervals if common is None else _intersect(common, intervals)
-    gaps.sort(key=lambda g: (g["from"], g["robot"]))
+    gaps.sort(key=lambda g: (g['from'], g['robot']))
     if not common:
-        raise BagError(f"{where}: the robots are never all observed at the same time "
-                       f"({'; '.join(f'{r.label}: {r.t[0]:.3f}..{r.t[-1]:.3f} s' for r in robots)})")
+        raise BagError(
+            f'{where}: the robots are never all observed at the same time '
+            f'({"; ".join(f"{r.label}: {r.t[0]:.3f}..{r.t[-1]:.3f} s" for r in robots)})'
+        )
     return Timeline(t0_ns, medians, max_gap, gap_rule, gaps, common)
 
 
-def segments(tl: Timeline, opts: ImportOptions, dt: float,
-             derive: Callable[[np.ndarray, str], Tuple[Optional[np.ndarray], Optional[str]]], where):
+def segments(
+    tl: Timeline,
+    opts: ImportOptions,
+    dt: float,
+    derive: Callable[[np.ndarray, str], Tuple[Optional[np.ndarray], Optional[str]]],
+    where,
+):
     """Each common stretch on the grid: ``(segments meta, [(segment, states [L, n, d])])`` for the
     ones long enough whose states ``derive(grid times, label)`` defines; the others say why not."""
     anchor, rate = tl.anchor, 1.0 / dt
@@ -89,45 +108,65 @@ def segments(tl: Timeline, opts: ImportOptions, dt: float,
         ka = int(np.ceil((a - anchor) * rate - 1e-9))
         kb = int(np.floor((b - anchor) * rate + 1e-9))
         L = kb - ka + 1
-        seg = {"start": a, "end": b, "grid_index": ka, "frames": max(L, 0), "kept": False, "reason": None,
-               "trajectories": []}
+        seg = {
+            'start': a,
+            'end': b,
+            'grid_index': ka,
+            'frames': max(L, 0),
+            'kept': False,
+            'reason': None,
+            'trajectories': [],
+        }
         metas.append(seg)
         duration = (L - 1) * dt
         if L < 3 or duration < opts.min_duration:
-            seg["reason"] = (f"{max(L, 0)} frame(s), {max(duration, 0):.3f} s < --min-duration "
-                             f"{opts.min_duration:g} s" if L >= 3 else f"{max(L, 0)} frame(s) < 3")
+            seg['reason'] = (
+                f'{max(L, 0)} frame(s), {max(duration, 0):.3f} s < --min-duration {opts.min_duration:g} s'
+                if L >= 3
+                else f'{max(L, 0)} frame(s) < 3'
+            )
             continue
         if opts.length is not None and L < opts.length:
-            seg["reason"] = f"{L} frames < --length {opts.length}"
+            seg['reason'] = f'{L} frames < --length {opts.length}'
             continue
-        states, reason = derive(anchor + (ka + np.arange(L)) * dt, f"segment {len(metas) - 1} [{a:.3f}, {b:.3f}] s")
+        states, reason = derive(
+            anchor + (ka + np.arange(L)) * dt, f'segment {len(metas) - 1} [{a:.3f}, {b:.3f}] s'
+        )
         if states is None:
-            seg["reason"] = reason
+            seg['reason'] = reason
             continue
         kept.append((seg, states))
     if not kept:
-        why = "; ".join(f"[{s['start']:.3f}, {s['end']:.3f}] s: {s['reason']}" for s in metas)
-        raise BagError(f"{where}: no segment is long enough to keep ({why})")
+        why = '; '.join(f'[{s["start"]:.3f}, {s["end"]:.3f}] s: {s["reason"]}' for s in metas)
+        raise BagError(f'{where}: no segment is long enough to keep ({why})')
     return metas, kept
 
 
 def windows(tl: Timeline, metas: List[Dict[str, Any]], kept, length: Optional[int], dt: float):
     """Cut the kept segments into windows of T frames (``length``, default the shortest kept
     segment) sharing their boundary frame: ``(states [S, T, n, d], trajectories meta, T)``."""
-    T = length if length is not None else min(s["frames"] for s, _ in kept)
+    T = length if length is not None else min(s['frames'] for s, _ in kept)
     out, traj_meta = [], []
     for seg, states in kept:
-        seg["kept"] = True
+        seg['kept'] = True
         L = states.shape[0]
         start, end = 0, 0
         while start + T <= L:
-            seg["trajectories"].append(len(out))
-            out.append(states[start:start + T])
-            k = seg["grid_index"] + start
+            seg['trajectories'].append(len(out))
+            out.append(states[start : start + T])
+            k = seg['grid_index'] + start
             t = tl.anchor + k * dt
-            traj_meta.append({"segment": metas.index(seg), "grid_index": k, "frame_in_segment": start,
-                              "start_time": t, "start_ns": tl.t0_ns + int(round(t * 1e9)), "frames": T})
+            traj_meta.append(
+                {
+                    'segment': metas.index(seg),
+                    'grid_index': k,
+                    'frame_in_segment': start,
+                    'start_time': t,
+                    'start_ns': tl.t0_ns + int(round(t * 1e9)),
+                    'frames': T,
+                }
+            )
             end = start + T
-            start += T - 1      # windows share their boundary frame: no transition is lost
-        seg["unused_frames"] = L - end
+            start += T - 1  # windows share their boundary frame: no transition is lost
+        seg['unused_frames'] = L - end
     return np.stack(out).astype(np.float64), traj_meta, T

@@ -7,6 +7,7 @@ is fitted so that our boids update maps frame t to frame t + 1 for all boids at 
 (:func:`model_check` reports the residual). :func:`simulate_with_frame_times` replays them.
 Shapes: T frames, n boids, rows (x, y, z, hx, hy, hz).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -17,15 +18,23 @@ import numpy as np
 from knode_swarm_ros.core.geometry import pair_distances
 from knode_swarm_ros.core.groundtruth import boids as gt_boids
 
-__all__ = ["estimate_frame_times", "decision_margins", "model_check", "simulate_with_frame_times",
-           "NOMINAL_DT", "MISMATCH", "TIE_MARGIN", "PRESET"]
+__all__ = [
+    'estimate_frame_times',
+    'decision_margins',
+    'model_check',
+    'simulate_with_frame_times',
+    'NOMINAL_DT',
+    'MISMATCH',
+    'TIE_MARGIN',
+    'PRESET',
+]
 
 NOMINAL_DT = 1.0 / 60.0
 #: A one-step residual above this (relative to the frame's displacement) counts as a mismatch.
 MISMATCH = 1e-3
 #: A decision (sweep or radius test) this close to its threshold is a tie that float32 may flip.
 TIE_MARGIN = 1e-4
-PRESET = "published"
+PRESET = 'published'
 
 
 # --------------------------------------------------------------------------- frame times
@@ -40,8 +49,9 @@ def _predicted_displacement(v: np.ndarray, a: np.ndarray, dt: np.ndarray, params
     return vn * dt
 
 
-def estimate_frame_times(states: np.ndarray, params=None, initial_speed: Optional[float] = None,
-                         grid: int = 41, levels: int = 6) -> Tuple[np.ndarray, np.ndarray]:
+def estimate_frame_times(
+    states: np.ndarray, params=None, initial_speed: Optional[float] = None, grid: int = 41, levels: int = 6
+) -> Tuple[np.ndarray, np.ndarray]:
     """Unity's frame times of one recording ``[T, n, 6]`` and the one-step model residuals.
 
     Frame t is stepped with our boids update for a candidate dt(t) from velocities
@@ -62,7 +72,7 @@ def estimate_frame_times(states: np.ndarray, params=None, initial_speed: Optiona
     d = np.diff(p, axis=0)
     dist = np.linalg.norm(d, axis=-1)
     if np.any(dist <= 0):
-        raise ValueError("a boid did not move between two frames; frame times cannot be estimated")
+        raise ValueError('a boid did not move between two frames; frame times cannot be estimated')
     lo_all = dist.max(axis=1) / params.max_speed
     hi_all = np.maximum(dist.min(axis=1) / params.min_speed, lo_all)
     T1 = d.shape[0]
@@ -83,7 +93,9 @@ def estimate_frame_times(states: np.ndarray, params=None, initial_speed: Optiona
         best = hi
         for _ in range(levels):
             cand = L + (H - L) * u
-            err = np.linalg.norm(_predicted_displacement(v, a, cand[:, None, None], params) - d[t], axis=-1).sum(1)
+            err = np.linalg.norm(
+                _predicted_displacement(v, a, cand[:, None, None], params) - d[t], axis=-1
+            ).sum(1)
             k = int(np.argmin(err))
             best, step = cand[k], (H - L) / (grid - 1)
             L, H = max(best - step, lo), min(best + step, hi)
@@ -101,7 +113,9 @@ def decision_margins(frame: np.ndarray, params=None) -> np.ndarray:
     params = gt_boids.get_preset(PRESET) if params is None else params
     p, h = frame[:, :3], frame[:, 3:]
     dist = pair_distances(p)
-    margin = np.minimum(np.abs(dist - params.perception_radius).min(1), np.abs(dist - params.avoidance_radius).min(1))
+    margin = np.minimum(
+        np.abs(dist - params.perception_radius).min(1), np.abs(dist - params.avoidance_radius).min(1)
+    )
     lo, hi = gt_boids._sweep_limits(p, params)
     heading = np.minimum(hi - h, h - lo).min(-1)
     margin = np.minimum(margin, np.abs(heading))
@@ -120,33 +134,45 @@ def model_check(full: np.ndarray, discard: int = 10, params=None) -> Dict[str, A
     decision ties."""
     params = gt_boids.get_preset(PRESET) if params is None else params
     dt, res = estimate_frame_times(full, params, initial_speed=0.5 * (params.min_speed + params.max_speed))
-    kept = res[discard:]                         # residual row t predicts frame t + 1 from frame t
+    kept = res[discard:]  # residual row t predicts frame t + 1 from frame t
     bad = np.argwhere(kept > MISMATCH)
     ties = sum(1 for t, i in bad if decision_margins(full[t + discard], params)[i] < TIE_MARGIN)
     dk = dt[discard:]
     return {
-        "frame_time_x60_percentiles": dict(zip(["min", "p05", "p25", "p50", "p75", "p95", "max"],
-                                               np.percentile(dk * 60, [0, 5, 25, 50, 75, 95, 100]).round(4).tolist())),
-        "frames_longer_than_1.01/60": float(np.mean(dk * 60 > 1.01)),
-        "duration_s": float(dk.sum()),
-        "preroll_s": float(dt[:discard].sum()),
-        "preroll_frame_times_x60": (dt[:discard] * 60).round(3).tolist(),
-        "residual_percentiles": dict(zip(["p50", "p99", "p99.9", "max"],
-                                         np.percentile(kept, [50, 99, 99.9, 100]).tolist())),
-        "boid_frames": int(kept.size),
-        "mismatches": int(len(bad)),
-        "mismatches_at_ties": int(ties),
-        "_dt": dk,
-        "_preroll": dt[:discard],
-        "_residual": kept,
+        'frame_time_x60_percentiles': dict(
+            zip(
+                ['min', 'p05', 'p25', 'p50', 'p75', 'p95', 'max'],
+                np.percentile(dk * 60, [0, 5, 25, 50, 75, 95, 100]).round(4).tolist(),
+            )
+        ),
+        'frames_longer_than_1.01/60': float(np.mean(dk * 60 > 1.01)),
+        'duration_s': float(dk.sum()),
+        'preroll_s': float(dt[:discard].sum()),
+        'preroll_frame_times_x60': (dt[:discard] * 60).round(3).tolist(),
+        'residual_percentiles': dict(
+            zip(['p50', 'p99', 'p99.9', 'max'], np.percentile(kept, [50, 99, 99.9, 100]).tolist())
+        ),
+        'boid_frames': int(kept.size),
+        'mismatches': int(len(bad)),
+        'mismatches_at_ties': int(ties),
+        '_dt': dk,
+        '_preroll': dt[:discard],
+        '_residual': kept,
     }
 
 
 # --------------------------------------------------------------------------- simulation
 
 
-def simulate_with_frame_times(runs: int, n: int, frames: int, seed: int, frame_times: Sequence[np.ndarray],
-                              params=None, preroll: Optional[Sequence[np.ndarray]] = None) -> np.ndarray:
+def simulate_with_frame_times(
+    runs: int,
+    n: int,
+    frames: int,
+    seed: int,
+    frame_times: Sequence[np.ndarray],
+    params=None,
+    preroll: Optional[Sequence[np.ndarray]] = None,
+) -> np.ndarray:
     """Our boids with the same spawns as :func:`simulate` (same seed) but stepped with given frame
     times: run j replays ``frame_times[j % R]`` (dt of recorded frame 0, 1, ...; at least
     ``frames - 1`` values) after the 10 discarded frames, which are stepped with ``preroll[j % R]``
@@ -158,11 +184,11 @@ def simulate_with_frame_times(runs: int, n: int, frames: int, seed: int, frame_t
     R = len(frame_times)
     for k, seq in enumerate(frame_times):
         if len(seq) < frames - 1:
-            raise ValueError(f"frame_times[{k}] holds {len(seq)} values, need {frames - 1}")
+            raise ValueError(f'frame_times[{k}] holds {len(seq)} values, need {frames - 1}')
     if preroll is None:
         preroll = [np.full(gt_boids.DISCARD_FRAMES, NOMINAL_DT)] * R
     if len(preroll) != R or any(len(x) != gt_boids.DISCARD_FRAMES for x in preroll):
-        raise ValueError(f"preroll needs {R} sequences of {gt_boids.DISCARD_FRAMES} frame times")
+        raise ValueError(f'preroll needs {R} sequences of {gt_boids.DISCARD_FRAMES} frame times')
     rng = np.random.default_rng(seed)
     pos, vel = gt_boids.initial_boids(rng, runs, n, params)
     out = np.empty((runs, frames, n, 6))
