@@ -32,7 +32,7 @@ def child(method: str, robots: int, batches: int, batch_size: int) -> dict:
     from knode_swarm_ros.core import get_scenario
     from knode_swarm_ros.core.groundtruth import simulate
     from training.learning.config import build_policy, load_config
-    from training.learning.objectives import loss_scales, one_step_loss, predict_next
+    from training.learning.objectives.one_step import loss_scales, one_step_loss, predict_next
     from training.learning.samples import make_samples
 
     cfg = load_config(os.path.join(ROOT, 'config', 'train_flock2d.yaml'))
@@ -75,7 +75,7 @@ def gradient_agreement() -> dict:
     from knode_swarm_ros.core import get_scenario
     from knode_swarm_ros.core.groundtruth import simulate
     from training.learning.config import build_policy, load_config
-    from training.learning.objectives import loss_scales, one_step_loss, predict_next
+    from training.learning.objectives.one_step import loss_scales, one_step_loss, predict_next
     from training.learning.samples import make_samples
 
     cfg = load_config(os.path.join(ROOT, 'config', 'train_flock2d.yaml'))

@@ -362,11 +362,11 @@ def test_phases_and_multi_step_windows_step_at_the_policy_dt(tmp_path):
         'selection': {'every': 0},
     }
     trainer = Trainer(normalise_config(raw), data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
-    assert trainer.multi.dt == 0.05
+    assert trainer.objective.dt == 0.05
     np.testing.assert_array_equal(
-        trainer.multi.windows.states.numpy(), phases(trainer.split['train'], 5).astype(np.float32)
+        trainer.objective.windows.states.numpy(), phases(trainer.split['train'], 5).astype(np.float32)
     )
-    assert trainer.multi.windows.states.shape[:2] == (3 * 5, 8)
+    assert trainer.objective.windows.states.shape[:2] == (3 * 5, 8)
     trainer.run()
     from knode_swarm_ros.core import load_policy
 

@@ -21,7 +21,7 @@ from knode_swarm_ros.core import (
 from knode_swarm_ros.core.network import neighbour_matrix_torch
 from knode_swarm_ros.core.rollout import rollout_torch
 from training.learning.config import ConfigError, normalise_config
-from training.learning.multistep import (
+from training.learning.objectives.multi_step import (
     Windows,
     augment_windows,
     consensus_loss,
@@ -30,7 +30,7 @@ from training.learning.multistep import (
     window_loss,
     window_scales,
 )
-from training.learning.objectives import loss_scales
+from training.learning.objectives.one_step import loss_scales
 from training.learning.trainer import Trainer
 
 torch.set_num_threads(1)
@@ -510,7 +510,7 @@ def test_consensus_weight_config_check_names_the_field(scenario, value, ok):
 
 def test_multi_step_objective_adds_the_weighted_consensus_term():
     """MultiStepObjective.loss = window loss + consensus_weight x consensus loss, on the same windows."""
-    from training.learning.multistep import MultiStepObjective
+    from training.learning.objectives.multi_step import MultiStepObjective
 
     states = rollout(
         lambda Y, m: np.zeros((Y.shape[0], 2)),

@@ -25,7 +25,7 @@ from knode_swarm_ros.core import (
 )
 from training.assessment.scores import module_policy_fn
 from training.learning.config import ConfigError, build_policy, normalise_config
-from training.learning.objectives import loss_scales, one_step_loss, predict_next
+from training.learning.objectives.one_step import loss_scales, one_step_loss, predict_next
 from training.learning.samples import implied_command, make_samples
 from training.learning.trainer import DivergenceError, Trainer
 from training.train import main as train_main

@@ -7,8 +7,9 @@
     python -m training.train ... --data data/flock2d.npz data/flock2d_n30.npz   # mixed swarm sizes (one_step)
 
 ``training.objective``: ``one_step`` (default; one zero-order-hold step from every observed
-state) or ``multi_step`` (rollouts over a curriculum of horizons, training/learning/multistep.py). The
-validation loss in metrics.jsonl is the one-step loss for both, so runs compare.
+state) or ``multi_step`` (rollouts over a curriculum of horizons), the names of the registry
+``training.learning.objectives.OBJECTIVES``. The validation loss in metrics.jsonl is the one-step
+loss for all, so runs compare.
 
 The run directory receives ``config.yaml`` (the normalised config), ``metrics.jsonl`` (one
 line per epoch), ``checkpoint.pt`` (after every good epoch), ``policy.pt`` (the exported

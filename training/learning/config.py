@@ -17,6 +17,8 @@ from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, get_scenar
 # A training config is invalid; the message names the field (one class with the nodes').
 from knode_swarm_ros.core.errors import ConfigError
 
+from .objectives import OBJECTIVES
+
 # ----------------------------------------------------------------------------- configs
 
 # Every config section with its defaults; ``None`` means "scenario dependent" (filled below).
@@ -48,7 +50,7 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
         'max_minutes': None,
         'objective': 'one_step',
     },
-    # the multi_step objective (training/learning/multistep.py): curriculum of horizons, from a one-step model
+    # the multi_step objective (objectives/multi_step.py): a curriculum of horizons, from a one-step model
     'multistep': {
         'init': None,
         'horizons': [10, 50, 200],
@@ -68,7 +70,6 @@ SOLVERS = ('zoh', 'rk4', 'adjoint')
 NOISE_MODES = ('inputs', 'observations', 'none')
 SCHEDULES = ('cosine', 'step', 'none')
 LOSS_UNITS = ('command', 'state')
-OBJECTIVES = ('one_step', 'multi_step')
 POLICY_FIELDS = {f.name for f in fields(PolicyConfig)} - {'scenario', 'extra'}
 
 

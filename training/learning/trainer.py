@@ -13,7 +13,7 @@ import math
 import os
 import sys
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, Optional
 
 import numpy as np
 import torch
@@ -25,10 +25,11 @@ from knode_swarm_ros.core.trajectory import atomic_write
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
 
 from .config import ConfigError, build_policy
-from .objectives import loss_scales, one_step_loss, predict_next
-from .period import period_ratio, phases, policy_dt, subsample
+from .objectives import TrainingData, make_objective
+from .objectives.one_step import OneStepObjective
+from .period import period_ratio, policy_dt, subsample
 from .records import code_provenance, data_reference, write_json
-from .samples import Samples, augment_batch, concat_samples, implied_command, make_samples
+from .samples import concat_samples, implied_command, make_samples
 
 
 class DivergenceError(RunError, RuntimeError):
@@ -125,7 +126,6 @@ class Trainer:
         pc, nc = cfg['policy'], cfg['noise']
         std = math.sqrt(nc['variance'])
         obs_std = std if nc['mode'] == 'observations' else 0.0
-        self.input_std = std if nc['mode'] == 'inputs' else 0.0
         rng = np.random.default_rng(cfg['seed'])
         t0 = time.perf_counter()
         self.splits, train_parts, val_parts = [], [], []
@@ -177,29 +177,14 @@ class Trainer:
         if len(self.train) == 0:
             raise DataError(f'{", ".join(paths)}: no training samples left (data.drop_saturated removed all)')
         self.prep_s = time.perf_counter() - t0
-        self.scales = loss_scales(
-            self.spec, self.dt, cfg['training']['loss_units'], cfg['training']['heading_weight']
-        )
         torch.manual_seed(cfg['seed'])
         self.policy = build_policy(cfg)
-        self.multi = None
-        if cfg['training']['objective'] == 'multi_step':
-            if len(self.splits) > 1:
-                raise ConfigError(
-                    "training.objective = 'multi_step' takes one --data file (windows roll out "
-                    "one swarm); mixed sizes train with 'one_step'"
-                )
-            from .multistep import MultiStepObjective, load_init_state
-
-            # windows step at the policy's dt: every phase of the subsampled data is a trajectory
-            self.multi = MultiStepObjective(cfg, self.spec, self.dt, phases(self.split['train'], self.ratio))
-            if cfg['multistep']['init'] is not None:
-                try:
-                    self.policy.load_state_dict(load_init_state(cfg['multistep']['init'], cfg['policy']))
-                except (OSError, RuntimeError, ValueError) as exc:
-                    raise ConfigError(
-                        f"config field 'multistep.init' = {cfg['multistep']['init']!r}: {exc}"
-                    ) from None
+        # training.objective (training.learning.objectives) draws the batches and computes the loss
+        data = TrainingData(self.train, [sp['train'] for sp in self.splits], self.ratio)
+        self.objective = make_objective(cfg, self.spec, self.dt, data)
+        self.objective.load_init(self.policy)
+        # the validation loss is the one-step loss whatever the objective, so runs compare on it
+        self.val_objective = None if self.val is None else OneStepObjective(cfg, self.spec, self.dt, self.val)
         tc = cfg['training']
         self.opt = torch.optim.Adam(self.policy.parameters(), lr=tc['lr'], weight_decay=tc['weight_decay'])
         self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, _lr_lambda(cfg))
@@ -300,44 +285,13 @@ class Trainer:
         atomic_write(self.ckpt_path, lambda tmp: torch.save(ck, tmp))
 
     # -- one epoch
-    def _batches(self, g: torch.Generator) -> List[torch.Tensor]:
-        if self.multi is not None:
-            return self.multi.batches(self.epoch + 1, g)
-        M = len(self.train)
-        bs = self.cfg['training']['batch_size']
-        bs = M if bs == 'full' else min(bs, M)
-        perm = torch.randperm(M, generator=g)
-        return list(torch.split(perm, bs))
-
-    def _loss(self, s: Samples, idx: Optional[torch.Tensor], g: Optional[torch.Generator]) -> torch.Tensor:
-        if self.multi is not None and s is self.train:
-            return self.multi.loss(self.policy, idx, g)
-        Y, mask, target, own = (
-            (s.Y, s.mask, s.target, s.clean_own)
-            if idx is None
-            else (s.Y[idx], s.mask[idx], s.target[idx], s.clean_own[idx])
-        )
-        ac = self.cfg['augment']
-        if g is not None and (ac['rotate'] or ac['velocity_boost'] > 0):
-            Y, own, target = augment_batch(
-                Y, mask, own, target, self.spec, self.dt, ac['rotate'], ac['velocity_boost'], g
-            )
-        noise = None
-        if g is not None and self.input_std > 0:
-            noise = torch.randn(Y.shape, generator=g) * self.input_std
-        tc = self.cfg['training']
-        pred = predict_next(
-            self.policy, self.spec, self.dt, Y, mask, own, tc['solver'], tc['ode_method'], noise
-        )
-        return one_step_loss(pred, target, self.scales)
-
     def val_loss(self) -> Optional[float]:
-        if self.val is None:
+        if self.val_objective is None:
             return None
         total, M = 0.0, len(self.val)
         with torch.no_grad():
             for idx in torch.split(torch.arange(M), 65536):
-                total += float(self._loss(self.val, idx, None)) * len(idx)
+                total += float(self.val_objective.loss(self.policy, idx, None)) * len(idx)
         return total / M
 
     def select_metrics(self) -> Optional[Dict[str, Any]]:
@@ -401,7 +355,7 @@ class Trainer:
             g = _epoch_generator(self.cfg['seed'], e)
             t0 = time.perf_counter()
             self.policy.train()
-            batches = self._batches(g)
+            batches = self.objective.batches(e, g)
             bar = tqdm(
                 batches,
                 desc=f'epoch {e}/{epochs}',
@@ -412,7 +366,7 @@ class Trainer:
             )
             total, count = 0.0, 0
             for idx in bar:
-                loss = self._loss(self.train, idx, g)
+                loss = self.objective.loss(self.policy, idx, g)
                 value = loss.item()
                 if not math.isfinite(value) or (
                     self.ref_loss is not None and value > tc['diverge_factor'] * self.ref_loss
@@ -488,9 +442,10 @@ class Trainer:
         return self.finish()
 
     def _select_starting_model(self) -> None:
-        """Fine-tuning from ``multistep.init``: the starting model is the first candidate of the
-        selection (epoch 0), so the run never returns a model that rolls out worse than it started."""
-        if self.multi is None or self.cfg['multistep']['init'] is None or not self.cfg['selection']['every']:
+        """Fine-tuning (the objective's ``init``: ``multistep.init``): the starting model is the first
+        candidate of the selection (epoch 0), so the run never returns a model that rolls out worse
+        than it started."""
+        if self.objective.init is None or not self.cfg['selection']['every']:
             return
         sel = self.select_metrics()
         self.start_selection = sel

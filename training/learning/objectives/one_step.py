@@ -1,13 +1,14 @@
-"""The one-step-ahead objective: predict a robot's next state with the policy, and its loss.
+"""The one-step-ahead objective (``training.objective: one_step``): predict every sampled robot's
+next state with the policy from its neighbour matrix, and penalise the error.
 
 The model is always :class:`knode_swarm_ros.core.KNODEPolicy`: the trained module is the
-exported one. Shapes: B samples, k neighbour rows, d state entries.
+exported one. Shapes: M samples, B samples of a batch, k neighbour rows, d state entries.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Any, Dict, List, Optional
 
 import torch
 from torch import Tensor, nn
@@ -15,6 +16,9 @@ from torch import Tensor, nn
 from knode_swarm_ros.core import KNODEPolicy
 from knode_swarm_ros.core.rollout import heading_torch, zoh_step_torch
 from knode_swarm_ros.core.scenarios import Scenario
+
+from ..samples import Samples, augment_batch
+from .base import Objective, TrainingData
 
 
 class HeldNeighbourField(nn.Module):
@@ -110,3 +114,46 @@ def loss_scales(spec: Scenario, dt: float, units: str, heading_weight: float = 1
 def one_step_loss(pred: Tensor, target: Tensor, scales: Tensor) -> Tensor:
     """Mean over samples and entries of ((pred - target) / scales)^2."""
     return (((pred - target) / scales) ** 2).mean()
+
+
+class OneStepObjective(Objective):
+    """Batches and loss of the ``one_step`` objective over one-step ``samples``.
+
+    ``batches(epoch, g)`` is a shuffle of the sample indices cut into ``training.batch_size``;
+    ``loss(policy, idx [B], g)`` is :func:`one_step_loss` of :func:`predict_next` on those samples,
+    with the ``augment`` symmetries and the input noise (``noise.mode: inputs``) drawn from ``g``.
+    """
+
+    def __init__(self, cfg: Dict[str, Any], spec: Scenario, dt: float, samples: Samples):
+        self.cfg, self.spec, self.dt, self.samples = cfg, spec, dt, samples
+        tc, nc = cfg['training'], cfg['noise']
+        self.input_std = math.sqrt(nc['variance']) if nc['mode'] == 'inputs' else 0.0
+        self.scales = loss_scales(spec, dt, tc['loss_units'], tc['heading_weight'])
+
+    @classmethod
+    def from_data(
+        cls, cfg: Dict[str, Any], spec: Scenario, dt: float, data: TrainingData
+    ) -> OneStepObjective:
+        return cls(cfg, spec, dt, data.samples)
+
+    def batches(self, epoch: int, g: torch.Generator) -> List[Tensor]:
+        M = len(self.samples)
+        bs = self.cfg['training']['batch_size']
+        bs = M if bs == 'full' else min(bs, M)
+        perm = torch.randperm(M, generator=g)
+        return list(torch.split(perm, bs))
+
+    def loss(self, policy: KNODEPolicy, idx: Tensor, g: Optional[torch.Generator]) -> Tensor:
+        s = self.samples
+        Y, mask, target, own = s.Y[idx], s.mask[idx], s.target[idx], s.clean_own[idx]
+        ac = self.cfg['augment']
+        if g is not None and (ac['rotate'] or ac['velocity_boost'] > 0):
+            Y, own, target = augment_batch(
+                Y, mask, own, target, self.spec, self.dt, ac['rotate'], ac['velocity_boost'], g
+            )
+        noise = None
+        if g is not None and self.input_std > 0:
+            noise = torch.randn(Y.shape, generator=g) * self.input_std
+        tc = self.cfg['training']
+        pred = predict_next(policy, self.spec, self.dt, Y, mask, own, tc['solver'], tc['ode_method'], noise)
+        return one_step_loss(pred, target, self.scales)

@@ -1,4 +1,5 @@
-"""Trajectory training: fit the hybrid model to whole windows of observed swarm motion.
+"""The multi-step objective (``training.objective: multi_step``): fit the hybrid model to whole
+windows of observed swarm motion.
 
 The one-step-ahead loss (``training.objective: one_step``) compares one zero-order-hold step
 from every observed state with the next observation. It barely weighs a small persistent
@@ -10,8 +11,8 @@ the model's own predicted states, delayed by tau) and penalises the whole predic
 with gradients through the rollout (direct backprop; ``multistep.checkpoint`` recomputes
 segments in the backward pass to save memory on long horizons). ``multistep.consensus_weight``
 adds the error of the velocities relative to the swarm's mean, what avd measures. A curriculum
-raises H stage by stage (``multistep.horizons`` with ``multistep.epochs`` epochs each), starting from a one-step
-model (``multistep.init``).
+raises H stage by stage (``multistep.horizons`` with ``multistep.epochs`` epochs each),
+starting from a one-step model (``multistep.init``).
 
 Shapes: N trajectories, T frames, n robots, d state entries, W windows of H + 1 frames.
 """
@@ -25,10 +26,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.rollout import rollout_torch
 from knode_swarm_ros.core.scenarios import Scenario
 
+from ..period import phases
+from .base import Objective, TrainingData
+
 __all__ = [
+    'MultiStepObjective',
+    'load_init_state',
     'Windows',
     'horizon_at',
     'window_scales',
@@ -277,17 +284,20 @@ def load_init_state(path: str, policy_cfg: Optional[Dict[str, Any]] = None) -> D
     return {k: v.detach().clone() for k, v in loaded.module.state_dict().items()}
 
 
-class MultiStepObjective:
-    """Batches and loss of the ``multi_step`` objective, for :class:`training.learning.trainer.Trainer`.
+class MultiStepObjective(Objective):
+    """Batches and loss of the ``multi_step`` objective over trajectories ``train_states [N, T, n, d]``
+    at the policy's ``dt``.
 
     ``batches(epoch, g)`` returns the window starts of one epoch (batches of
     ``multistep.batch_windows``) at the curriculum's horizon; ``loss(policy, starts, g)`` rolls
-    the policy out over each window and returns :func:`window_loss`.
+    the policy out over each window and returns :func:`window_loss` (plus the weighted
+    :func:`consensus_loss`). Training starts from ``multistep.init`` when it is set.
     """
 
     def __init__(self, cfg: Dict[str, Any], spec: Scenario, dt: float, train_states: np.ndarray):
         self.cfg, self.spec, self.dt = cfg, spec, dt
         self.mc = cfg['multistep']
+        self.init = self.mc['init']
         bad = None
         if cfg['data']['drop_saturated']:
             # as the one-step samples: steps whose implied command exceeds the saturation (close
@@ -297,6 +307,26 @@ class MultiStepObjective:
             bad = implied.max(axis=(2, 3)) > cfg['policy']['command_limit']
         self.windows = Windows(train_states, cfg['policy']['tau'], bad)
         self.H = self.mc['horizons'][0]
+
+    @classmethod
+    def from_data(
+        cls, cfg: Dict[str, Any], spec: Scenario, dt: float, data: TrainingData
+    ) -> MultiStepObjective:
+        if len(data.trajectories) > 1:
+            raise ConfigError(
+                "training.objective = 'multi_step' takes one --data file (windows roll out "
+                "one swarm); mixed sizes train with 'one_step'"
+            )
+        # windows step at the policy's dt: every phase of the subsampled data is a trajectory
+        return cls(cfg, spec, dt, phases(data.trajectories[0], data.ratio))
+
+    def load_init(self, policy: torch.nn.Module) -> None:
+        if self.init is None:
+            return
+        try:
+            policy.load_state_dict(load_init_state(self.init, self.cfg['policy']))
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise ConfigError(f"config field 'multistep.init' = {self.init!r}: {exc}") from None
 
     def batches(self, epoch: int, g: torch.Generator) -> List[Tensor]:
         self.H = horizon_at(epoch, self.mc['horizons'], self.mc['epochs'])
