@@ -137,7 +137,7 @@ def test_unicycle_swarm_without_commands_drives_straight_like_the_double_integra
     assert np.all(speed[:, -1] < 0.2 * speed[:, 0] + 1e-9)
 
 
-# --- the simulator's robot model (core.unicycle.UnicycleRobots, SwarmSim robot=...) ----------------
+# --- the simulator's robot model (core.unicycle.UnicycleRobots, SwarmSim robot_model='unicycle') ---
 def _bases(z0, **limits):
     from knode_swarm_ros.core.unicycle import UnicycleRobots
 
@@ -212,7 +212,6 @@ def test_base_enforces_its_limits_like_a_real_one():
 
 
 def test_swarm_sim_with_unicycles_records_the_world_velocity_and_brakes_a_silent_robot():
-    from knode_swarm_ros.core.unicycle import UnicycleRobots
     from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
 
     z0 = np.array([[0.0, 0.0, 1.0, 0.0], [3.0, 0.0, 0.0, -0.5]])
@@ -222,7 +221,8 @@ def test_swarm_sim_with_unicycles_records_the_world_velocity_and_brakes_a_silent
         0.05,
         'realtime',
         command_timeout=0.1,
-        robot=UnicycleRobots(z0, UnicycleLimits(max_linear_accel=2.0)),
+        robot_model='unicycle',
+        robot_params={'max_linear_accel': 2.0},
     )
     assert np.allclose(sim.states, z0, atol=1e-15)
     assert sim.offer(0, sim.stamp_ns, [1.0, 0.0]) == 'accepted'
@@ -238,7 +238,7 @@ def test_swarm_sim_with_unicycles_records_the_world_velocity_and_brakes_a_silent
     from knode_swarm_ros.logic.common import ConfigError
 
     with pytest.raises(ConfigError, match='robot_model'):
-        SwarmSim('flock2d', z0, 0.05, ground_truth=object(), robot=UnicycleRobots(z0, UnicycleLimits()))
+        SwarmSim('flock2d', z0, 0.05, ground_truth=object(), robot_model='unicycle')
 
 
 @pytest.mark.parametrize('theta', [0.3, 1.9, -2.6, -1.2, np.pi])

@@ -4,10 +4,11 @@
     python -m training.studies.unicycle_study --out out/unicycle --ros    # and once through ROS (swarm, lockstep)
 
 Exactly what ``swarm --robot-model unicycle --mode lockstep`` runs, without ROS: the simulator's
-stepping (:class:`knode_swarm_ros.logic.simulator.swarm_sim.SwarmSim` with the unicycle bases of
-:class:`knode_swarm_ros.core.unicycle.UnicycleRobots`, which enforce the limits), the REP 105
-Odometry fields the simulator publishes, what the agent's policy sees of them (``unicycle_state``:
-the point ahead, or the axle), the policy's saturated command (:func:`core.rollout.policy_commands`)
+stepping (:class:`knode_swarm_ros.logic.simulator.swarm_sim.SwarmSim` with its ``unicycle`` robot
+model, the bases of :class:`knode_swarm_ros.core.unicycle.UnicycleRobots`, which enforce the
+limits), the REP 105 Odometry fields the simulator publishes, what the agent's policy sees of
+them (``unicycle_state``: the point ahead, or the axle), the policy's saturated command
+(:func:`core.rollout.policy_commands`)
 and the agent's mapping to (v, omega) (:class:`~knode_swarm_ros.core.unicycle.UnicycleMapper`).
 Starts: held-out Tanner draws (seed 2026); heading = direction of the initial velocity.
 
@@ -36,10 +37,9 @@ from knode_swarm_ros.core.geometry import min_pair_distance
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.rollout import policy_commands
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.core.unicycle import UnicycleLimits, UnicycleMapper, UnicycleRobots
+from knode_swarm_ros.core.unicycle import UnicycleLimits, UnicycleMapper
 from knode_swarm_ros.logic.contract.rep105 import fields_to_point_state, fields_to_state, yaw_of
 from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
-from knode_swarm_ros.nodes.simulator.robot_model import unicycle_odom_fields
 
 from .robustness import interval
 
@@ -66,18 +66,20 @@ def unicycle_rollout(
     spec = get_scenario('flock2d')
     limits = list(limits) if isinstance(limits, (list, tuple)) else [limits] * S
     sims = [
-        SwarmSim('flock2d', z0[s], dt, 'lockstep', robot=UnicycleRobots(z0[s], limits[s])) for s in range(S)
+        SwarmSim('flock2d', z0[s], dt, 'lockstep', robot_model='unicycle', robot_params=vars(limits[s]))
+        for s in range(S)
     ]
     mappers = [[UnicycleMapper(limits[s], 'acceleration', dt) for _ in range(n)] for s in range(S)]
     for s in range(
         S
     ):  # a base already moving: the agent starts its limits from its motion (as AgentUnicycle)
         for i in range(n):
-            mappers[s][i].last = (float(sims[s].robot.speed[i]), float(sims[s].robot.turn[i]))
+            bases = sims[s].robots.bases
+            mappers[s][i].last = (float(bases.speed[i]), float(bases.turn[i]))
     out = np.empty((S, steps + 1, n, 4))
     seen = np.empty((S, n, 4))
     for t in range(steps + 1):
-        fields = [[unicycle_odom_fields(sim.robot, i) for i in range(n)] for sim in sims]
+        fields = [[sim.robots.odom_fields(i) for i in range(n)] for sim in sims]
         for s in range(S):
             out[s, t] = sims[s].states
             for i, (pos, quat, lin, ang) in enumerate(fields[s]):

@@ -1,10 +1,10 @@
 """The simulated swarm, without ROS: state, commands, integration, lockstep bookkeeping.
 
-:class:`SwarmSim` holds the states ``[n, d]`` of robots ``0 .. n-1`` and the newest command of
-each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step` (docs/DESIGN.md,
-"Rollout semantics"), or, in ground-truth mode, with the Tanner / boids stepper of
-:mod:`knode_swarm_ros.core.groundtruth`, which ignores commands; or, with a robot model
-(``robot_model: unicycle``, :mod:`.simulator_robot`), as differential-drive bases taking (v, omega).
+:class:`SwarmSim` holds robots ``0 .. n-1`` of a robot model (parameter ``robot_model``,
+:mod:`.robot_models`; by default the scenario's point robots, stepped by the core's
+:func:`zoh_step`, docs/DESIGN.md "Rollout semantics") and the newest command of each, and advances
+one step of ``dt`` at a time under the commands held; or, in ground-truth mode, with the Tanner /
+boids stepper of :mod:`knode_swarm_ros.core.groundtruth`, which ignores commands.
 
 * lockstep: a step advances once every live robot has answered the current step (a command
   stamped with the current state's stamp). A robot still silent ``lockstep_timeout`` wall
@@ -13,9 +13,10 @@ each, and advances one step of ``dt`` at a time with the core's :func:`zoh_step`
 * realtime: each step uses each robot's newest command (by stamp); a robot whose newest command
   is older than ``command_timeout`` seconds of simulated time (or that never sent one) is stopped.
 
-Stopping follows docs/DESIGN.md: a velocity-commanded robot gets zero velocity, an acceleration-
-commanded one brakes to rest at the saturated deceleration
-(:func:`knode_swarm_ros.core.saturation.stop_command` with ``stop_limit``); it never coasts.
+Stopping follows docs/DESIGN.md and is the robot model's: a velocity-commanded robot gets zero
+velocity, an acceleration-commanded one brakes to rest at the saturated deceleration
+(:func:`knode_swarm_ros.core.saturation.stop_command` with ``stop_limit``), a differential-drive
+base is commanded (0, 0) and brakes within its limits; it never coasts.
 
 It also keeps the figures the benchmark reports: state-to-command latency (wall seconds from
 publishing a state to receiving the first command stamped with it) and command counters.
@@ -28,10 +29,10 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.core.rollout import zoh_step
-from knode_swarm_ros.core.saturation import stop_command
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario
 from knode_swarm_ros.logic.common import MODES, ConfigError, percentiles, stamp_ns, step_of
+
+from .robot_models import DEFAULT_ROBOT_MODEL, RobotModel, make_robot_model
 
 __all__ = [
     'SwarmSim',
@@ -172,11 +173,12 @@ class SwarmSim:
         command_timeout: realtime: commands older than this (simulated seconds) count as zero.
         ground_truth: optional stepper (``step() -> [1, n, d]``) that replaces the commands.
         stop_limit: per-axis deceleration limit of a braking stop (None or 0: rest in one step).
-        robot: None (the scenario's point masses) or a flock2d robot model built from ``z0``
-            (:class:`knode_swarm_ros.core.unicycle.UnicycleRobots`): commands are its (v, omega), a
-            stop commands (0, 0) (the base brakes within its limits), the states are its
-            ``states()``.
+        robot_model: a name of :data:`.robot_models.ROBOT_MODELS`; the robots are built from ``z0``
+            (their states are the model's ``states()``, commands ``[m]`` the model's).
+        robot_params: the model's parameters (e.g. the unicycle's limits; others are ignored).
     """
+
+    robots: RobotModel
 
     def __init__(
         self,
@@ -187,7 +189,8 @@ class SwarmSim:
         command_timeout: float = 0.5,
         ground_truth=None,
         stop_limit: Optional[float] = None,
-        robot=None,
+        robot_model: str = DEFAULT_ROBOT_MODEL,
+        robot_params: Optional[Dict[str, float]] = None,
     ):
         self.spec: Scenario = get_scenario(scenario)
         z0 = np.array(z0, dtype=np.float64)
@@ -207,14 +210,10 @@ class SwarmSim:
         if stop_limit is not None and not (np.isfinite(stop_limit) and stop_limit >= 0):
             raise ConfigError(f"parameter 'command_limit' must be >= 0, got {stop_limit}")
         self.stop_limit = float(stop_limit) if stop_limit else None
-        if robot is not None and (ground_truth is not None or self.spec.name != 'flock2d'):
-            raise ConfigError(
-                "parameter 'robot_model': a unicycle robot model needs flock2d and no ground truth"
-            )
-        self.robot = robot
+        self.robots = make_robot_model(robot_model, self.spec, z0, ground_truth is not None, robot_params)
         self.step = 0
-        self.states = z0 if robot is None else robot.states()
-        m = self.spec.command_dim
+        self.states = self.robots.states()
+        m = self.robots.command_dim
         self.commands = np.zeros((self.n, m))  # newest command of each robot
         self.command_step = np.full(self.n, -1, dtype=np.int64)  # its stamp's step (-1: none yet)
         self.applied = np.zeros((self.n, m))  # what the last step applied
@@ -251,7 +250,7 @@ class SwarmSim:
             c.unknown_id += 1
             return 'unknown_id'
         u = np.asarray(u, dtype=np.float64)
-        if u.shape != (self.spec.command_dim,):
+        if u.shape != (self.robots.command_dim,):
             c.bad_size += 1
             return 'bad_size'
         if not np.all(np.isfinite(u)):
@@ -328,6 +327,7 @@ class SwarmSim:
         """One step of ``dt``; returns the new states ``[n, d]``."""
         if self.ground_truth is not None:
             self.states = np.array(self.ground_truth.step()[0], dtype=np.float64)
+            self.robots.place(self.states)
         else:
             command = self.commands.copy()
             if self.mode == 'realtime':
@@ -339,11 +339,8 @@ class SwarmSim:
                 self.counters.zeroed += int(np.count_nonzero(old))
                 command[old] = self.stop_commands()[old]
             self.applied = command
-            if self.robot is not None:
-                self.robot.step(command, self.dt)
-                self.states = self.robot.states()
-            else:
-                self.states = zoh_step(self.states, command, self.spec, self.dt)
+            self.robots.step(command, self.dt)
+            self.states = self.robots.states()
         self.step += 1
         self.answered = set()
         self._settled = len(self.lost)
@@ -351,14 +348,7 @@ class SwarmSim:
 
     def stop_commands(self) -> np.ndarray:
         """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
-        if self.robot is not None:  # (v, omega) = 0: the base brakes within its own limits
-            return np.zeros((self.n, 2))
-        v = (
-            self.states[:, self.spec.velocity]
-            if self.spec.command == 'acceleration'
-            else np.zeros((self.n, self.spec.command_dim))
-        )
-        return stop_command(self.spec.command, v, self.stop_limit, self.dt)
+        return self.robots.stop_commands(self.stop_limit, self.dt)
 
     # --- reporting -----------------------------------------------------------------
     def report(self) -> Dict[str, Any]:

@@ -35,7 +35,7 @@ command was computed from, ``header.frame_id = 'world'``.
 from __future__ import annotations
 
 import struct
-from typing import Optional, Tuple, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -66,6 +66,8 @@ __all__ = [
     'command_msg_type',
     'command_to_msg',
     'command_to_cdr',
+    'command_from_cdr',
+    'command_fields_from_cdr',
     'string_to_cdr',
     'msg_to_command',
 ]
@@ -302,6 +304,17 @@ def command_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, np.ndarr
     x, y) or TwistStamped (velocity commands: linear x, y, z): :func:`msg_to_command` of the
     message rclpy would deserialize, read without building it (the simulator takes 100s a step).
 
+    Raises:
+        CdrError: see :func:`command_fields_from_cdr`.
+    """
+    return command_fields_from_cdr(data, range(_spec(scenario).command_dim))
+
+
+def command_fields_from_cdr(data: bytes, fields: Sequence[int]) -> Tuple[int, np.ndarray]:
+    """(stamp ns, ``u`` float64) of a serialized AccelStamped or TwistStamped, ``u`` = the entries
+    ``fields`` of (linear.x, .y, .z, angular.x, .y, .z) (a robot model's
+    :class:`~knode_swarm_ros.logic.simulator.robot_models.CommandWire`).
+
     Accepts and refuses what rclpy's deserializer does (tested on valid and mutated bytes): the
     little-endian encapsulations of :data:`_COMMAND_ALIGN`, the frame_id's NUL unchecked, bytes
     after the message ignored.
@@ -321,10 +334,10 @@ def command_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, np.ndarr
         linear = _LINEAR.unpack_from(data, pos)
         if pos + 48 > len(data):
             raise CdrError(f'truncated command ({len(data)} bytes, expected {pos + 48})')
+        vector = linear + _LINEAR.unpack_from(data, pos + 24)
     except struct.error as exc:
         raise CdrError(f'truncated command ({len(data)} bytes): {exc}') from None
-    m = _spec(scenario).command_dim
-    return sec * 1_000_000_000 + nanosec, np.array(linear[:m], dtype=np.float64)
+    return sec * 1_000_000_000 + nanosec, np.array([vector[i] for i in fields], dtype=np.float64)
 
 
 def string_to_cdr(text: str) -> bytes:

@@ -1,7 +1,7 @@
 """The ``simulator`` executable: integrates the swarm and publishes every robot's state.
 
-Modules: :mod:`.node` the node, :mod:`.robot_model` the simulated robots' model (parameter
-``robot_model``). The swarm it integrates lives in :mod:`knode_swarm_ros.logic.simulator`.
+Modules: :mod:`.node` the node, :mod:`.robot_model` the ``robot_model`` parameters. The swarm
+it integrates and its robot models live in :mod:`knode_swarm_ros.logic.simulator`.
 Importing this package imports nothing heavy; :func:`main` loads the node.
 """
 

@@ -16,6 +16,7 @@ import sys
 import time
 from functools import partial
 
+from geometry_msgs.msg import AccelStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -35,7 +36,6 @@ from knode_swarm_ros.logic.common import (
     SIMULATOR_STATUS_TOPIC,
     ConfigError,
     agent_status_topic,
-    command_topic,
     odom_topic,
     parse_status,
     status_json,
@@ -51,21 +51,20 @@ from knode_swarm_ros.logic.simulator.swarm_sim import (
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
     CdrError,
-    command_from_cdr,
-    command_msg_type,
+    command_fields_from_cdr,
     fields_to_cdr,
-    odom_to_cdr,
     time_msg,
 )
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
 from knode_swarm_ros.nodes.common.params import check_overrides, declare
 
-from .robot_model import command_subscription, declare_robot_model, make_robot_model, unicycle_odom_fields
+from .robot_model import declare_robot_model
 
 __all__ = ['SimulatorNode', 'main']
 
 _WATCHDOG_PERIOD = 0.01  # wall seconds
+_COMMAND_MESSAGES = {'acceleration': AccelStamped, 'velocity': TwistStamped}  # CommandWire.kind -> type
 
 
 class SimulatorNode(Node):
@@ -230,7 +229,7 @@ class SimulatorNode(Node):
             True,
             'exit after the last step (otherwise keep publishing the final state until stopped)',
         )
-        robot_model, limits = declare_robot_model(self)
+        robot_model, robot_params = declare_robot_model(self)
         check_overrides(self, sys.argv)
 
         if init:
@@ -246,8 +245,17 @@ class SimulatorNode(Node):
             else:
                 gt = None
             origin = {'seed': seed}
-        robots_model = make_robot_model(robot_model, scenario, z0, ground_truth, limits)  # None: point masses
-        self.sim = SwarmSim(scenario, z0, dt, mode, command_timeout, gt, stop_limit, robots_model)
+        self.sim = SwarmSim(
+            scenario,
+            z0,
+            dt,
+            mode,
+            command_timeout,
+            gt,
+            stop_limit,
+            robot_model=robot_model,
+            robot_params=robot_params,
+        )
         self.spec = spec
         self.mode = mode
         self.n = self.sim.n
@@ -294,14 +302,17 @@ class SimulatorNode(Node):
         self.clock_pub = self.create_publisher(ClockMsg, CLOCK_TOPIC, qos.CLOCK)
         self.status_pub = self.create_publisher(String, SIMULATOR_STATUS_TOPIC, qos.STATUS)
         self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, qos.MARKERS)
-        if robots_model is not None:  # differential drive: TwistStamped (linear.x, angular.z) on cmd_vel
-            self.cmd_subs = command_subscription(self, self.n, self._on_twist, qos.COMMAND)
-        elif gt is None:
-            ctype = command_msg_type(spec)
-            # raw=True: serialized bytes read by conversions.command_from_cdr (no message objects)
+        wire = self.sim.robots.wire
+        self.command_fields = wire.fields
+        if gt is None:
+            # raw=True: serialized bytes read by conversions.command_fields_from_cdr (no message objects)
             self.cmd_subs = [
                 self.create_subscription(
-                    ctype, command_topic(r, spec.command), partial(self._on_command, r), qos.COMMAND, raw=True
+                    _COMMAND_MESSAGES[wire.kind],
+                    wire.topic(r),
+                    partial(self._on_command, r),
+                    qos.COMMAND,
+                    raw=True,
                 )
                 for r in range(self.n)
             ]
@@ -366,24 +377,10 @@ class SimulatorNode(Node):
     # --- publishing ----------------------------------------------------------------
     def publish_frame(self) -> None:
         ns = self.sim.stamp_ns
-        velocity = self.spec.command == 'velocity'
-        if self.sim.robot is not None:  # REP 105 as a differential-drive driver: yaw, body twist (v, omega)
-            for r, pub in enumerate(self.odom_pubs):
-                pub.publish(fields_to_cdr(r, ns, *unicycle_odom_fields(self.sim.robot, r), self.frame_id))
-            self.clock_pub.publish(ClockMsg(clock=time_msg(ns)))
-            return
+        robots = self.sim.robots
         for r, pub in enumerate(self.odom_pubs):
-            # serialized directly: the bytes of conversions.state_to_odom, without rclpy's conversion
-            pub.publish(
-                odom_to_cdr(
-                    r,
-                    ns,
-                    self.sim.states[r],
-                    self.spec,
-                    self.sim.applied[r] if velocity else None,
-                    self.frame_id,
-                )
-            )
+            # serialized directly: the bytes rclpy would make of the Odometry, without its conversion
+            pub.publish(fields_to_cdr(r, ns, *robots.odom_fields(r), self.frame_id))
         self.clock_pub.publish(ClockMsg(clock=time_msg(ns)))
 
     def publish_status(self) -> None:
@@ -396,13 +393,10 @@ class SimulatorNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_command(self, robot: int, data: bytes) -> None:
         try:
-            ns, u = command_from_cdr(data, self.spec)
+            ns, u = command_fields_from_cdr(data, self.command_fields)
         except CdrError as exc:
             self.life.on_malformed_command(robot, str(exc))
             return
-        self.life.on_command(robot, ns, u, time.monotonic())
-
-    def _on_twist(self, robot: int, ns: int, u) -> None:
         self.life.on_command(robot, ns, u, time.monotonic())
 
     def _on_agent_status(self, robot: int, msg: String) -> None:
