@@ -144,6 +144,11 @@ def _parity(record, policy_path, steps):
     states = data.states[0]
     assert states.shape[0] == steps + 1
     assert data.meta['incomplete_frames'] == 0 and data.meta['filled_entries'] == 0
+    import torch
+
+    # One intra-op thread, as every agent (torch_threads: 1): a matrix product's rounding depends on
+    # the thread count, so the comparison must not depend on what earlier tests left set.
+    torch.set_num_threads(1)
     policy = load_policy(policy_path)
     ref = rollout(policy, states[0], steps, data.scenario, policy.d_cr, policy.k, policy.tau, policy.dt)
     return float(np.abs(ref - states).max())
