@@ -113,10 +113,7 @@ class TickOnState:
             return None
         step, stamp = self.pending
         need = max(step - tau, self.first_step)
-        have = hearing.count_at(need) + (
-            hearing.buffer.get(me, need) is None
-        )  # (own lost at need: not awaited)
-        missing = have < hearing.live_count(now_ns)
+        missing = not hearing.complete(need, hearing.live_count(now_ns), me)
         if missing and (self.reopened or (wall < self.since + self.grace_s and not force)):
             return None
         self.pending, self.reopened = None, False
