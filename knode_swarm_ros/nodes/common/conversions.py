@@ -67,6 +67,9 @@ __all__ = [
     'command_to_msg',
     'command_to_cdr',
     'string_to_cdr',
+    'CDR_LE',
+    'cdr_pad',
+    'cdr_put_string',
     'msg_to_command',
 ]
 
@@ -144,17 +147,19 @@ class CdrError(KnodeError, ValueError):
     """Bytes that are not a serialized nav_msgs/Odometry."""
 
 
-_CDR_LE = b'\x00\x01\x00\x00'  # encapsulation: plain CDR, little endian
+CDR_LE = b'\x00\x01\x00\x00'  # encapsulation: plain CDR, little endian
 _ZEROS_36 = bytes(8 * 36)  # a zero covariance
 
 
-def _pad(buf: bytearray, to: int) -> None:
+def cdr_pad(buf: bytearray, to: int) -> None:
+    """Zero bytes up to the next multiple of ``to`` after the 4-byte encapsulation header."""
     buf.extend(bytes((-(len(buf) - 4)) % to))
 
 
-def _put_string(buf: bytearray, text: str) -> None:
+def cdr_put_string(buf: bytearray, text: str) -> None:
+    """Append a CDR string (aligned length, UTF-8 bytes, NUL)."""
     raw = text.encode('utf-8') + b'\x00'
-    _pad(buf, 4)
+    cdr_pad(buf, 4)
     buf.extend(struct.pack('<I', len(raw)))
     buf.extend(raw)
 
@@ -188,11 +193,11 @@ def fields_to_cdr(
     twist (linear ``[3]``, angular ``[3]``), covariances zero (e.g. ``odom_mapping.unicycle_fields``)."""
     if ns < 0:
         raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
-    buf = bytearray(_CDR_LE)
+    buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
-    _put_string(buf, frame_id)
-    _put_string(buf, robot_frame(robot) if child_frame_id is None else child_frame_id)
-    _pad(buf, 8)
+    cdr_put_string(buf, frame_id)
+    cdr_put_string(buf, robot_frame(robot) if child_frame_id is None else child_frame_id)
+    cdr_pad(buf, 8)
     buf.extend(struct.pack('<7d', *position, *quaternion))
     buf.extend(_ZEROS_36)
     buf.extend(struct.pack('<6d', *linear, *angular))
@@ -282,10 +287,10 @@ def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
     spec = _spec(scenario)
     u = np.asarray(u, dtype=np.float64)
     linear = (float(u[0]), float(u[1]), 0.0 if spec.command == 'acceleration' else float(u[2]))
-    buf = bytearray(_CDR_LE)
+    buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
-    _put_string(buf, WORLD_FRAME)
-    _pad(buf, 8)
+    cdr_put_string(buf, WORLD_FRAME)
+    cdr_pad(buf, 8)
     buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
     return bytes(buf)
 
@@ -330,8 +335,8 @@ def command_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, np.ndarr
 def string_to_cdr(text: str) -> bytes:
     """The serialized form of ``std_msgs/String(data=text)`` (a hosting process publishes a
     status per robot)."""
-    buf = bytearray(_CDR_LE)
-    _put_string(buf, text)
+    buf = bytearray(CDR_LE)
+    cdr_put_string(buf, text)
     return bytes(buf)
 
 
