@@ -40,10 +40,11 @@ from knode_swarm_ros.core.unicycle import UnicycleLimits, UnicycleMapper, Unicyc
 from knode_swarm_ros.logic.contract.rep105 import fields_to_point_state, fields_to_state, yaw_of
 from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
 from knode_swarm_ros.nodes.simulator.robot_model import unicycle_odom_fields
+from training.assessment.stats import interval
 
-from .robustness import interval
-
-SHIPPED = os.path.join(os.path.dirname(__file__), '..', 'knode_swarm_ros', 'policies', 'flock2d_20hz.pt')
+SHIPPED = os.path.join(
+    os.path.dirname(__file__), '..', '..', 'knode_swarm_ros', 'policies', 'flock2d_20hz.pt'
+)
 
 
 def unicycle_rollout(
