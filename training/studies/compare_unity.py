@@ -29,7 +29,6 @@ default ``--out``). Exit status 0 ok, 2 bad input (the message names file and li
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -46,6 +45,7 @@ from training.assessment.stats import describe, mean_ci
 from training.data.unity.frames import MISMATCH, NOMINAL_DT, PRESET, model_check, simulate_with_frame_times
 from training.data.unity.recordings import UnityFormatError, read_recording
 from training.data.unity.statistics import STATS, compare_groups, pod_kld_pairs, run_statistics
+from training.learning.records import write_json
 
 __all__ = ['compare', 'write_summary', 'main']
 
@@ -397,8 +397,7 @@ def compare(
     if figures != '':
         results['figures'] = _figures(figures or out, data, frame_times, checks, kld, pod)
     results['seconds'] = round(time.perf_counter() - t0, 1)
-    with open(os.path.join(out, 'results.json'), 'w') as fh:
-        json.dump(results, fh, indent=1)
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     write_summary(os.path.join(out, 'summary.md'), results)
     log(f'wrote {os.path.join(out, "results.json")} and summary.md ({results["seconds"]} s)')
     return results

@@ -18,7 +18,6 @@ seed 0), and the link model's draws are seeded per setting.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -32,6 +31,7 @@ from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.link import LinkConfig, link_rollout
 from training.assessment.stats import interval
+from training.learning.records import write_json
 
 LOSSES = (0.0, 0.05, 0.1, 0.2, 0.3)
 DELAY_UNITS = (0, 1, 2, 3, 4, 5)
@@ -133,11 +133,7 @@ def run(
         'rows': rows,
         'goal': goal,
     }
-    os.makedirs(out, exist_ok=True)
-    tmp = os.path.join(out, f'.results.json.tmp{os.getpid()}')
-    with open(tmp, 'w') as fh:
-        json.dump(results, fh, indent=1)
-    os.replace(tmp, os.path.join(out, 'results.json'))
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     figure(results, os.path.join(out, 'robustness.png'))
     return results
 

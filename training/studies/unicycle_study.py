@@ -41,6 +41,7 @@ from knode_swarm_ros.logic.contract.rep105 import fields_to_point_state, fields_
 from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
 from knode_swarm_ros.nodes.simulator.robot_model import unicycle_odom_fields
 from training.assessment.stats import interval
+from training.learning.records import write_json
 
 SHIPPED = os.path.join(
     os.path.dirname(__file__), '..', '..', 'knode_swarm_ros', 'policies', 'flock2d_20hz.pt'
@@ -179,9 +180,7 @@ def run(
         'flock_speed_double_integrator': interval(flock_speed),
         'rows': rows,
     }
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, 'results.json'), 'w') as fh:
-        json.dump(results, fh, indent=1)
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     return results
 
 
@@ -309,8 +308,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     results = run(a.policy, a.out, a.starts, 10, a.steps, a.seed, a.bind_speed)
     if a.ros:
         results['ros'] = ros_confirm(os.path.abspath(a.policy), a.out, a.steps, a.seed, a.bind_speed)
-        with open(os.path.join(a.out, 'results.json'), 'w') as fh:
-            json.dump(results, fh, indent=1)
+        write_json(os.path.join(a.out, 'results.json'), results, indent=1, sort_keys=False)
     return 0
 
 
