@@ -45,15 +45,12 @@ from nav_msgs.msg import Odometry
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario
 from knode_swarm_ros.logic.common import WORLD_FRAME, robot_frame
-from knode_swarm_ros.logic.contract import orientation
 from knode_swarm_ros.logic.contract.orientation import yaw_quaternion
 from knode_swarm_ros.logic.contract.rep105 import TWIST_FRAMES, fields_to_state, state_to_fields
 
 __all__ = [
     'time_msg',
     'time_ns',
-    'heading_to_quaternion',
-    'quaternion_to_heading',
     'yaw_quaternion',
     'state_to_odom',
     'odom_to_state',
@@ -91,16 +88,6 @@ def time_msg(ns: int) -> Time:
 def time_ns(stamp: Time) -> int:
     """Integer nanoseconds of a ``builtin_interfaces/Time``."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def heading_to_quaternion(h) -> Tuple[float, float, float, float]:
-    """(x, y, z, w) of the rotation taking +x onto ``h`` (see :mod:`.orientation`)."""
-    return tuple(float(v) for v in orientation.heading_to_quaternion(h))
-
-
-def quaternion_to_heading(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """The image ``[3]`` of +x under the rotation (x, y, z, w) (see :mod:`.orientation`)."""
-    return orientation.quaternion_to_heading(np.array([x, y, z, w], dtype=np.float64))
 
 
 def state_to_odom(
