@@ -1,4 +1,4 @@
-"""Deploying at the rate a policy was trained for (issue 19).
+"""Deploying at the rate a policy was trained for.
 
 * the agent's control-period check: equal (silent), a whole multiple and a mismatch (one
   warning naming both periods, or a refusal with ``rate_check: refuse``), the ratio in status;

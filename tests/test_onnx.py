@@ -1,4 +1,4 @@
-"""ONNX twins and the torch-free robot runtime (issue 15).
+"""ONNX twins and the torch-free robot runtime.
 
 * the twin equals the TorchScript module within 1e-5 on a table of inputs (random rows, empty
   neighbourhoods, full rows, coincident robots, walls in 3D, real swarms), for untrained and

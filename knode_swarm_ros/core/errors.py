@@ -46,7 +46,7 @@ class ConfigError(KnodeError, ValueError):
     """A config field, parameter, argument or input file that prevents a command or node from
     starting; the message names it and the offending value. (The nodes and the training config
     share this one class: ``knode_swarm_ros.logic.common.ConfigError`` and
-    ``training.common.ConfigError`` are it.)"""
+    ``training.learning.config.ConfigError`` are it.)"""
 
 
 def first_line(exc: BaseException) -> str:

@@ -1,4 +1,4 @@
-"""One small interface for evaluating a policy, with two backends (issue 15).
+"""One small interface for evaluating a policy, with two backends.
 
 * ``torchscript``: :class:`knode_swarm_ros.core.policy_io.LoadedPolicy` (the contract and the
   training artefact; imports torch).
