@@ -1,4 +1,4 @@
-"""Benchmark reading and writing bags (issue 16): rosbags in every format, against the
+"""Benchmark reading and writing bags: rosbags in every format, against the
 mcap-ros2-support decoder the importer used before, in the same run.
 
     python bench/bench_bag.py [--robots 10] [--seconds 20] [--rate 100] [--repeat 3]

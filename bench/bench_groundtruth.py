@@ -1,4 +1,4 @@
-"""Benchmark the ground-truth generators on the paper's full datasets (issue 3).
+"""Benchmark the ground-truth generators on the paper's full datasets.
 
     python bench/bench_groundtruth.py [--repeat 3] [--baseline-trajectories 2] [--baseline-steps 100]
 

@@ -1,4 +1,4 @@
-"""What the install costs (issue 10, item 2): the venv's size, its torch build, and the memory of
+"""What the install costs: the venv's size, its torch build, and the memory of
 one agent process.
 
     python bench/bench_install.py

@@ -1,4 +1,4 @@
-"""Benchmark of the torch-free robot runtime (issue 15): onnxruntime against TorchScript.
+"""Benchmark of the torch-free robot runtime: onnxruntime against TorchScript.
 
     python bench/bench_onnx.py                          # everything
     python bench/bench_onnx.py --only tick --only start # seconds, no swarm
@@ -23,7 +23,7 @@ Figures, each as onnxruntime against TorchScript measured in the same run:
   commands (the simulator's robot-steps without a fresh command, ``zeroed``), odometry and
   command loss, state-to-command latency and the agents' summed private memory.
 
-Goals (issue 15): an onnxruntime agent <= 80 MB private memory, start to first command
+Goals: an onnxruntime agent <= 80 MB private memory, start to first command
 <= 0.5 s plus discovery, tick p50 <= 50 us; 50 lone onnxruntime agents at 20 Hz with < 1 %
 missed commands.
 """

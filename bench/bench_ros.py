@@ -1,4 +1,4 @@
-"""Benchmark of the ROS 2 deployment (issue 5): agent logic, lockstep and realtime swarms.
+"""Benchmark of the ROS 2 deployment: agent logic, lockstep and realtime swarms.
 
     python bench/bench_ros.py                 # everything (about 5 to 10 minutes on 2 cores)
     python bench/bench_ros.py --only tick     # the agent's per-tick cost only (seconds)
@@ -15,7 +15,7 @@ Figures:
   odometry and command loss, state-to-command latency p50/p99 (wall time from the simulator
   publishing a state to receiving the first command stamped with it).
 
-Goals (issue 5, this 2-core machine): 10 robots realtime at 20 Hz with no loss and p99
+Goals (this 2-core machine): 10 robots realtime at 20 Hz with no loss and p99
 latency under 20 ms; a 2000-step 10-robot lockstep episode under 60 s; 20 robots realtime at
 20 Hz with under 1 % loss. Uses the shipped flock2d policy.
 """

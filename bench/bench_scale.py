@@ -1,4 +1,4 @@
-"""Benchmark of swarms of 10 to 200 robots (issue 12): one agent process per robot vs hosted agents.
+"""Benchmark of swarms of 10 to 200 robots: one agent process per robot vs hosted agents.
 
     python bench/bench_scale.py                          # everything below (long)
     python bench/bench_scale.py --only tick              # per-robot tick cost in a hosting process (seconds)
@@ -482,7 +482,7 @@ def main(argv=None) -> int:
                 )
             results[f'lockstep_{n}'] = rows
     if 'realtime' in only:
-        # As `swarm --mode realtime` deploys: the policy trained for the control rate (issue 19)
+        # As `swarm --mode realtime` deploys: the policy trained for the control rate
         from knode_swarm_ros.core.policy_meta import read_pt_meta
         from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
 

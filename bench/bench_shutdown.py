@@ -1,4 +1,4 @@
-"""Shutdown under traffic (issue 10, "Done when"): agent, hosted agents, simulator and recorder
+"""Shutdown under traffic: agent, hosted agents, simulator and recorder
 each stopped with SIGINT or SIGTERM (alternating) while messages flow, REPS times each.
 
     python bench/bench_shutdown.py              # 50 times each (about 15 minutes on 2 cores)

@@ -84,7 +84,7 @@ def untrained_policies(tmp_path_factory):
     return out
 
 
-# --- No silent skips (issue 18) -----------------------------------------------------------
+# --- No silent skips -----------------------------------------------------------
 # A skipped test is not a pass. With CI=true (or KNODE_NO_SKIPS=1) any skip fails the run
 # unless its test id starts with an entry of SKIP_ALLOW_LIST (each with the reason it may
 # skip there); every skip is listed at the end either way. Keep the list short.

@@ -1,4 +1,4 @@
-"""AgentLogic at its edges (issue 18): timeouts at exactly their limit, and an agent that
+"""AgentLogic at its edges: timeouts at exactly their limit, and an agent that
 joins a run already under way.
 
 Each test here fails on a mutation that the broader tests in test_nodes_logic.py let

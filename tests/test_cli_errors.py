@@ -194,7 +194,7 @@ def test_parse_set():
     ],
 )
 def test_runner_prints_the_message_and_names_an_empty_os_error(capsys, exc, line):
-    """The whole line, not only its start (mutation survivors of issue 18)."""
+    """The whole line, not only its start."""
     assert _main_raising(exc)() == 2
     assert capsys.readouterr().err == line
 

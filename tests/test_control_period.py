@@ -1,4 +1,4 @@
-"""Deploying at the rate a policy was trained for (issue 19).
+"""Deploying at the rate a policy was trained for.
 
 * the agent's control-period check: equal (silent), a whole multiple and a mismatch (one
   warning naming both periods, or a refusal with ``rate_check: refuse``), the ratio in status;
@@ -298,7 +298,7 @@ def test_realtime_defaults_pick_the_policy_of_the_rate(tmp_path):
         open(os.path.join(os.path.dirname(__file__), '..', 'config', 'agent_flock2d.yaml'))
     )['/**']['ros__parameters']
     assert config['mode'] == 'realtime' and config['policy'] == '' and config['control_rate'] == 20.0
-    from knode_swarm_ros.nodes.agent.node import load_agent_policy
+    from knode_swarm_ros.nodes.agent.plumbing import load_agent_policy
 
     assert (
         load_agent_policy('', config['scenario'], 0, 0.0, -1, 0.0, control_rate=config['control_rate']).dt

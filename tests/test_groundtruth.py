@@ -1,4 +1,4 @@
-"""Ground-truth swarms (issue 3): known answers and physics, not smoke.
+"""Ground-truth swarms: known answers and physics, not smoke.
 
 Tanner flocking (flock2d): hand-computed forces, autograd of the potential, momentum, the
 Lyapunov function, RK4 (hand step, order), initial-condition statistics, flocking outcome.

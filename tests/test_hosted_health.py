@@ -1,4 +1,4 @@
-"""/diagnostics of a hosting ``agents`` process (issue 12): one DiagnosticArray per report with
+"""/diagnostics of a hosting ``agents`` process: one DiagnosticArray per report with
 one status per hosted robot, each equal to the one its lone agent publishes on the same input."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Issue 10, items 8 and 9: bad files give a clear error naming the file and the field, exit
+"""Bad files give a clear error naming the file and the field, exit
 status 2, never a traceback; every policy field is bounded by what a policy can sensibly be."""
 
 import json

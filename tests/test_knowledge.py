@@ -65,7 +65,7 @@ def test_no_force_beyond_d0_or_without_neighbours():
 
 def test_coincident_robots_get_the_floored_push_along_plus_x():
     # r = 0 has no direction: the documented choice is +x with the floored magnitude
-    # lambda / min_distance^3 (issue 18: it used to be exactly zero).
+    # lambda / min_distance^3 (not zero).
     Y, mask = matrices([1.0, 1.0], [[1.0, 1.0]], [1, 1])
     force = collision_avoidance(Y, mask, 2, torch.tensor(2.0), d0=1.0, min_distance=0.01)
     torch.testing.assert_close(force, torch.tensor([[2.0 / 0.01**3, 0.0]]))

@@ -1,4 +1,4 @@
-"""Issue 10, items 1, 5 and 6: the launcher's first run, its plan checks and its Ctrl-C.
+"""The launcher's first run, its plan checks and its Ctrl-C.
 
 The first tests need no ROS process: the plan is checked before anything starts. The ROS ones
 start the launcher and assert what must hold whatever the timing of the processes: nothing is

@@ -1,4 +1,4 @@
-"""Training on several data files with swarms of different sizes (issue 13), and provenance
+"""Training on several data files with swarms of different sizes, and provenance
 (repository-relative data paths, the commit of the code, the rewrite of shipped metadata)."""
 
 import os

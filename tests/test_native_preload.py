@@ -1,5 +1,5 @@
 """nodes/native_preload: torch's native libraries load in a worker thread (GIL released), before
-torch's own import, and torch works as usual afterwards (issue 10: a signal during start-up is
+torch's own import, and torch works as usual afterwards (so a signal during start-up is
 handled at once instead of after libtorch's dlopen)."""
 
 import os

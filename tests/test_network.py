@@ -49,7 +49,7 @@ def test_ties_are_broken_by_lower_id():
 
 def test_many_equidistant_robots_keep_id_order():
     # 16 robots exactly 5 from robot 0 (integer points of the circle of radius 5, shuffled
-    # ids): an unstable sort keeps id order for 4 ties but not for this many (issue 18).
+    # ids): an unstable sort keeps id order for 4 ties but not for this many.
     pts = [
         (5, 0),
         (-5, 0),

@@ -1,4 +1,4 @@
-"""The no-silent-skips rule of tests/conftest.py (issue 18), run on a throw-away suite."""
+"""The no-silent-skips rule of tests/conftest.py, run on a throw-away suite."""
 
 from pathlib import Path
 

@@ -9,14 +9,13 @@ import nav_msgs.msg  # noqa: F401  (a broken install must fail, not skip)
 import numpy as np
 import pytest
 
+from knode_swarm_ros.logic.contract.orientation import heading_to_quaternion, quaternion_to_heading
 from knode_swarm_ros.logic.contract.rep105 import rotate
 from knode_swarm_ros.nodes.common.conversions import (
     command_msg_type,
     command_to_msg,
-    heading_to_quaternion,
     msg_to_command,
     odom_to_state,
-    quaternion_to_heading,
     state_to_odom,
     time_msg,
     time_ns,
@@ -59,9 +58,9 @@ def test_heading_quaternion_rotates_x_onto_h_and_round_trips():
         R = _rotation(*q)
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
         assert np.allclose(R[:, 0], h, atol=1e-14)  # +x goes onto h
-        assert np.abs(quaternion_to_heading(*q) - h).max() <= 1e-15
-    assert heading_to_quaternion([0, 0, 0]) == (0.0, 0.0, 0.0, 1.0)
-    assert np.array_equal(quaternion_to_heading(0, 0, 0, 1), [1.0, 0.0, 0.0])
+        assert np.abs(quaternion_to_heading(q) - h).max() <= 1e-15
+    assert np.array_equal(heading_to_quaternion([0, 0, 0]), [0.0, 0.0, 0.0, 1.0])
+    assert np.array_equal(quaternion_to_heading([0, 0, 0, 1]), [1.0, 0.0, 0.0])
 
 
 def test_yaw_quaternion():

@@ -1,4 +1,4 @@
-"""ONNX twins and the torch-free robot runtime (issue 15).
+"""ONNX twins and the torch-free robot runtime.
 
 * the twin equals the TorchScript module within 1e-5 on a table of inputs (random rows, empty
   neighbourhoods, full rows, coincident robots, walls in 3D, real swarms), for untrained and
@@ -207,7 +207,7 @@ def test_export_cli_bad_file_exits_2(tmp_path, capsys):
 
 def test_onnxruntime_missing_gives_a_clear_error(monkeypatch, twins):
     from knode_swarm_ros.logic.common import ConfigError
-    from knode_swarm_ros.nodes.agent.node import load_agent_policy
+    from knode_swarm_ros.nodes.agent.plumbing import load_agent_policy
 
     monkeypatch.setitem(sys.modules, 'onnxruntime', None)  # import onnxruntime now raises ImportError
     with pytest.raises(PolicyError, match='needs the onnxruntime package, which is not installed'):

@@ -78,7 +78,7 @@ def test_relative_frame_is_translation_invariant_for_flock2d():
 
 def test_translation_invariance_holds_for_rows_with_missing_neighbours():
     # 3 robots, k = 6: every matrix has padded rows. The mask must hide them from the
-    # relative features, or the command depends on where the swarm is (issue 18).
+    # relative features, or the command depends on where the swarm is.
     policy = make_policy()
     Y, mask = batch(n=3, seed=4)
     assert (mask.sum(-1) < 6).all() and (mask.sum(-1) > 1).any()

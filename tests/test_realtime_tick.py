@@ -1,4 +1,4 @@
-"""Realtime ticks on the arrival of the robot's own state (issue 19; logic/agent/realtime_tick.py).
+"""Realtime ticks on the arrival of the robot's own state (logic/agent/realtime_tick.py).
 
 A realtime agent computes the command of step s when its own state of step s arrives and its
 live neighbours' states of step s - tau are in (or a grace has passed), at most once per

@@ -1,4 +1,4 @@
-"""Issue 10, item 4: the recorder applies the agents' checks to every stamp (age, step grid,
+"""The recorder applies the agents' checks to every stamp (age, step grid,
 finiteness), so a hostile or stale message can neither invent frames nor lose the recording."""
 
 import numpy as np

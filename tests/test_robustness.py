@@ -10,6 +10,7 @@ from knode_swarm_ros.core import load_trajectories, save_trajectories
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.network import neighbour_matrix
 from training import rollout as rollout_cli
+from training.assessment.stats import interval
 from training.studies import robustness
 
 
@@ -25,7 +26,7 @@ def test_local_tanner_with_every_robot_in_view_is_the_global_law():
 
 
 def test_interval_is_the_t_interval():
-    r = robustness.interval(np.array([1.0, 2.0, 3.0]))
+    r = interval(np.array([1.0, 2.0, 3.0]))
     assert r['mean'] == 2.0 and r['hi'] - 2.0 == pytest.approx(4.302652729911275 / np.sqrt(3))
 
 

@@ -324,7 +324,7 @@ def test_recorder_writes_what_it_heard_and_publishes_metrics(ros, tmp_path):
 
 
 def test_simulator_refuses_an_agent_whose_policy_steps_at_another_dt(ros):
-    """Issue 10, item 10: a simulator dt that differs from the policy's no longer runs to the end."""
+    """A simulator dt that differs from the policy's no longer runs to the end."""
     from knode_swarm_ros.logic.common import status_json
     from knode_swarm_ros.nodes.simulator.node import SimulatorNode
 
@@ -350,7 +350,7 @@ def test_simulator_refuses_an_agent_whose_policy_steps_at_another_dt(ros):
 
 
 def test_parameter_typos_and_shadowed_values_are_refused(tmp_path, ros_domain_id):
-    """Issue 10, item 10: a mistyped key, or -p before a --params-file that sets it again."""
+    """A mistyped key, or -p before a --params-file that sets it again."""
     from knode_swarm_ros.nodes.common.params import shadowed_overrides
 
     typo = tmp_path / 'typo.yaml'

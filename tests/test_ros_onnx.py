@@ -1,4 +1,4 @@
-"""A whole swarm on onnxruntime with torch impossible to import (issue 15).
+"""A whole swarm on onnxruntime with torch impossible to import.
 
 The launcher, the simulator, ten lockstep agents and the recorder run with a
 ``sitecustomize`` on PYTHONPATH that makes ``import torch`` fail in every process; the

@@ -1,4 +1,4 @@
-"""Issue 10, "Done when": a node stopped by SIGINT or SIGTERM while messages flow, or while it is
+"""A node stopped by SIGINT or SIGTERM while messages flow, or while it is
 still being built, exits 0 and leaves none of its FastDDS shared-memory files behind.
 
 Which files are the node's own is read from /proc/locks while it runs (the lock files of its

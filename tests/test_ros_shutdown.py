@@ -1,4 +1,4 @@
-"""Issue 10, item 3 (and 8's params file): the executables stop cleanly on SIGINT / SIGTERM at
+"""The executables stop cleanly on SIGINT / SIGTERM at
 any moment, start-up included, and refuse an unparsable params file with exit status 2.
 
 Whatever the moment the signal lands (importing, inside rclpy.init, building the node,

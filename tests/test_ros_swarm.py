@@ -272,7 +272,7 @@ def test_a_killed_agent_is_reported_and_the_others_go_on(tmp_path, untrained_pol
         port = re.match(r'(?:sem\.)?fastrtps_port(\d+)', name)
         if port and int(port.group(1)) in ours:
             left.append(name)
-        elif name.endswith(('_el', '_sl')) and not swarm._locked(swarm.SHM_DIR / name):
+        elif name.endswith(('_el', '_sl')) and not swarm.lock_held(swarm.SHM_DIR / name):
             left.append(name)
     assert not left, f'stale shared-memory files left: {left}'
 

@@ -1,4 +1,4 @@
-"""Issue 10, items 11 and 12: one saturation rule (core.saturation) for the offline rollout and
+"""One saturation rule (core.saturation) for the offline rollout and
 the agent, and stops that brake acceleration-commanded robots to rest instead of letting them coast."""
 
 import numpy as np
@@ -151,7 +151,7 @@ def test_dt_mismatch_names_both_values():
 
 
 def test_limits_and_stop_arguments_are_checked_at_their_edges():
-    """Mutation survivors (issue 18): every limit in (0, inf) is accepted as given, everything
+    """Mutation survivors: every limit in (0, inf) is accepted as given, everything
     else refused; an unknown command kind is refused whatever its spelling sorts like; dt must be
     finite and > 0."""
     assert effective_limit(0.5) == 0.5 and effective_limit(None, 0.25) == 0.25  # below 1 is fine

@@ -1,4 +1,4 @@
-"""The 3D scaling study and grid (issue 17): subswarms, escapes and goals on hand-built swarms with
+"""The 3D scaling study and grid: subswarms, escapes and goals on hand-built swarms with
 known answers; the drivers end to end on tiny configurations."""
 
 import json

@@ -1,4 +1,4 @@
-"""The simulator's command path at scale (issue 12): commands read from their serialized bytes,
+"""The simulator's command path at scale: commands read from their serialized bytes,
 and the lockstep advance decided by a count instead of a scan of every robot."""
 
 import random

@@ -1,5 +1,5 @@
 """The launcher's closing summary (make demo): the ground-truth swarm from the recording's start
-beside the learnt one, in the summary and the figure (issue 13). No ROS: a recording on disk."""
+beside the learnt one, in the summary and the figure. No ROS: a recording on disk."""
 
 from types import SimpleNamespace
 

@@ -1,4 +1,4 @@
-"""Issue 10, item 2: the venv gets the CPU build of the pinned torch wherever it is installed,
+"""The venv gets the CPU build of the pinned torch wherever it is installed,
 or stops with a message that says how (tools/torch_build.py, run by `make venv`)."""
 
 import importlib.util

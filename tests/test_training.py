@@ -227,7 +227,7 @@ def test_exported_policy_matches_module_and_has_provenance(tmp_path):
     assert prov['config'] == cfg and prov['data_file'] == 'teacher.npz' and 'git_commit' in prov
     for name in ('config.yaml', 'metrics.jsonl', 'checkpoint.pt', 'summary.json'):
         assert (tmp_path / 'run' / name).is_file()
-    # issue 15: training writes the ONNX twin beside the policy, and it matches the module
+    # Training writes the ONNX twin beside the policy, and it matches the module
     twin = load_runtime(tmp_path / 'run' / 'policy.pt', 'onnxruntime')
     assert twin.backend == 'onnxruntime' and twin.meta == loaded.meta
     np.testing.assert_allclose(twin(s.Y.numpy(), s.mask.numpy()), want, atol=1e-5)
@@ -274,7 +274,7 @@ def test_divergence_guard_on_poisoned_data(tmp_path):
 
 
 def test_a_failed_fresh_run_leaves_the_earlier_run_in_its_directory_intact(tmp_path):
-    """Issue 10, item 7: a new run that fails before its first epoch must not delete the old
+    """A new run that fails before its first epoch must not delete the old
     summary and metrics, rewrite the config, or pass the old checkpoint off as its own."""
     data, _ = _teacher_data(tmp_path)
     _, cfg = _config(tmp_path, training={'epochs': 1})

@@ -61,8 +61,8 @@ def test_evaluate_writes_results_and_figures(tmp_path, scenario):
     )
     for name in names:
         assert (out / name).stat().st_size > 0, name
-    # The figures in results.json are the core metrics of the core rollout (issue 18: they were
-    # only checked to exist): recompute them here from the policy file and the data.
+    # The figures in results.json are the core metrics of the core rollout (not only present):
+    # recompute them here from the policy file and the data.
     spec, loaded = get_scenario(scenario), load_policy(pol)
     pred = rollout(
         loaded, states[1:, 0], states.shape[1] - 1, scenario, loaded.d_cr, loaded.k, loaded.tau, loaded.dt

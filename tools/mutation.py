@@ -1,4 +1,4 @@
-"""Mutation testing of the core and the ROS-free node logic with cosmic-ray (issue 18).
+"""Mutation testing of the core and the ROS-free node logic with cosmic-ray.
 
     python tools/mutation.py [--only knowledge,network] [--sample N --seed S] [--workdir out/mutation]
 

@@ -1,4 +1,4 @@
-"""pytest plugin of tools/mutation.py: which test runs which line (issue 18).
+"""pytest plugin of tools/mutation.py: which test runs which line.
 
     python -m pytest -p tools.mutation_cov ...   (env MUTATION_COV_OUT=<file.json>)
 

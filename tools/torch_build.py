@@ -5,7 +5,7 @@
 
 The robots run torch on the CPU; on Linux x86_64 the public package index serves the CUDA
 build (16 nvidia-* packages: a 5.2 GB venv, 707 MB of private memory per agent instead of
-332 MB, measured 2026-11-30). So before the requirements are installed:
+332 MB). So before the requirements are installed:
 
 1. ask pip what ``torch==<pin of requirements.txt>`` resolves to from the configured sources
    (``pip install --dry-run --no-deps --report``): a CPU-only build (a ``+cpu`` version, or a

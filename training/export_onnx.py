@@ -1,4 +1,4 @@
-"""Export a policy file to its ONNX twin (issue 15; docs/DESIGN.md, "ONNX twin").
+"""Export a policy file to its ONNX twin (docs/DESIGN.md, "ONNX twin").
 
     python -m training.export_onnx POLICY.pt [MORE.pt ...] [--out POLICY.onnx] [--tol 1e-5]
 

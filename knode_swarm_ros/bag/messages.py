@@ -229,36 +229,19 @@ def _quat(q) -> Tuple[float, float, float, float]:
 def samples_of(type_name: str, msg: Any, log_ns: int) -> List[Tuple[Optional[str], Sample]]:
     """``[(child frame or None, Sample)]`` carried by one decoded message of a supported type
     (ROS 1 and ROS 2 alike: rosbags gives ROS 1 times as ``sec``/``nanosec``)."""
-    if type_name == ODOMETRY:
-        pose = msg.pose.pose
-        return [
-            (
-                None,
-                Sample(
-                    stamp_to_ns(msg.header.stamp),
-                    log_ns,
-                    _xyz(pose.position),
-                    _quat(pose.orientation),
-                    _xyz(msg.twist.twist.linear),
-                    str(msg.header.frame_id),
-                ),
-            )
-        ]
-    if type_name == POSE_STAMPED:
-        pose = msg.pose
-        return [
-            (
-                None,
-                Sample(
-                    stamp_to_ns(msg.header.stamp),
-                    log_ns,
-                    _xyz(pose.position),
-                    _quat(pose.orientation),
-                    None,
-                    str(msg.header.frame_id),
-                ),
-            )
-        ]
+    if type_name in (ODOMETRY, POSE_STAMPED):
+        odometry = type_name == ODOMETRY
+        pose = msg.pose.pose if odometry else msg.pose
+        linear = _xyz(msg.twist.twist.linear) if odometry else None  # a pose carries no twist
+        sample = Sample(
+            stamp_to_ns(msg.header.stamp),
+            log_ns,
+            _xyz(pose.position),
+            _quat(pose.orientation),
+            linear,
+            str(msg.header.frame_id),
+        )
+        return [(None, sample)]
     if type_name == TF_MESSAGE:
         return [
             (

@@ -7,7 +7,7 @@ prints ``prog: error: <message>`` and exits with it):
 * bad input (a file, field, argument or parameter; the message names it): :data:`EXIT_BAD_INPUT`;
   the domain subclasses (:class:`~.policy_meta.PolicyError`, :class:`~.trajectory.TrajectoryError`,
   :class:`ConfigError`, ``BagError``, ``DataError``, ``UnityFormatError``) are also ``ValueError``s,
-  as they were before this base existed;
+  so that code catching ``ValueError`` catches them;
 * :class:`RunError`: the input was fine but the run failed: :data:`EXIT_RUN_FAILED`, or a
   status a command documents (``training.train``'s divergence: 3).
 """
@@ -20,6 +20,7 @@ __all__ = [
     'KnodeError',
     'RunError',
     'ConfigError',
+    'first_line',
 ]
 
 EXIT_OK = 0
@@ -45,4 +46,11 @@ class ConfigError(KnodeError, ValueError):
     """A config field, parameter, argument or input file that prevents a command or node from
     starting; the message names it and the offending value. (The nodes and the training config
     share this one class: ``knode_swarm_ros.logic.common.ConfigError`` and
-    ``training.common.ConfigError`` are it.)"""
+    ``training.learning.config.ConfigError`` are it.)"""
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (its type's name when the message is empty):
+    what a one-line error names of a third-party failure."""
+    text = str(exc).strip()
+    return text.splitlines()[0].strip() if text else type(exc).__name__

@@ -33,7 +33,7 @@ from typing import Any, Dict, List, Tuple
 import numpy as np
 
 from .geometry import distances
-from .network import _rank
+from .network import rank_neighbours
 from .rollout import PolicyFn, zoh_step
 from .scenarios import get_scenario
 
@@ -215,7 +215,7 @@ def link_rollout(
         view[:, eye] = own_delayed
         dist = np.sqrt(np.sum((view[..., :p] - own_delayed[:, :, None, :p]) ** 2, axis=-1))
         dist = np.where(alive & ~eye, dist, np.inf)
-        index, valid = _rank(dist, d_cr, k)
+        index, valid = rank_neighbours(dist, d_cr, k)
         rows = _gather_rows(view, index, valid)
         Y = np.concatenate([out[:, t, :, None, :], rows], axis=-2)
         mask = np.concatenate([np.ones((S, n, 1), dtype=bool), valid], axis=-1)

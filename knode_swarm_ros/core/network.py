@@ -25,6 +25,7 @@ from .geometry import distances, pair_distances
 
 __all__ = [
     'neighbour_matrix',
+    'rank_neighbours',
     'neighbour_matrix_single',
     'neighbour_matrices',
     'neighbour_index',
@@ -34,7 +35,7 @@ __all__ = [
 ]
 
 
-def _rank(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
+def rank_neighbours(dist: np.ndarray, d_cr: float, k: int) -> Tuple[np.ndarray, np.ndarray]:
     """Pick up to k-1 neighbours per query row from ``dist [..., q, n]``.
 
     Entries that are not candidates (the robot itself) must already be ``inf``.
@@ -104,7 +105,7 @@ def neighbour_index(
         raise ValueError(f'k must be >= 1, got {k}')
     pos = np.asarray(z_delayed)[..., :position_dim]
     dist = pair_distances(pos)  # inf diagonal: a robot is not its own neighbour
-    return _rank(dist, d_cr, k)
+    return rank_neighbours(dist, d_cr, k)
 
 
 def neighbour_matrix_torch(z_now, z_delayed, position_dim: int, d_cr: float, k: int):
@@ -177,7 +178,7 @@ def neighbour_matrix_rows(
     pos = z_delayed[:, :position_dim]
     dist = distances(pos[rows], pos)
     dist[np.arange(len(rows)), rows] = np.inf  # a robot is not its own neighbour
-    index, valid = _rank(dist, d_cr, k)
+    index, valid = rank_neighbours(dist, d_cr, k)
     return _assemble(np.asarray(z_now), z_delayed, index, valid)
 
 

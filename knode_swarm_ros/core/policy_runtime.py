@@ -1,4 +1,4 @@
-"""One small interface for evaluating a policy, with two backends (issue 15).
+"""One small interface for evaluating a policy, with two backends.
 
 * ``torchscript``: :class:`knode_swarm_ros.core.policy_io.LoadedPolicy` (the contract and the
   training artefact; imports torch).
@@ -23,6 +23,7 @@ from typing import Any, Dict, Optional, Union
 
 import numpy as np
 
+from .errors import first_line
 from .policy_meta import PolicyError, check_meta, parse_meta, read_pt_meta
 from .scenarios import scenario_ref
 
@@ -116,11 +117,6 @@ def _import_onnxruntime():
     return onnxruntime
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 def _check_signature(where: str, session, meta: Dict[str, Any]) -> None:
     k, d, m = int(meta['k']), int(meta['state_dim']), int(meta['command_dim'])
     inputs = {i.name: i.shape for i in session.get_inputs()}
@@ -152,7 +148,7 @@ def _check_signature(where: str, session, meta: Dict[str, Any]) -> None:
         out = session.run(None, {'Y': Y, 'mask': mask})[0]
     except Exception as exc:  # onnxruntime raises its own exception types
         raise PolicyError(
-            f'{where}: running Y[2, {k}, {d}], mask[2, {k}] failed: {_first_line(exc)}'
+            f'{where}: running Y[2, {k}, {d}], mask[2, {k}] failed: {first_line(exc)}'
         ) from None
     if out.shape != (2, m) or out.dtype != np.float32:
         raise PolicyError(f'{where}: returned {out.dtype} {out.shape}, expected float32 (2, {m})')
@@ -211,7 +207,7 @@ def load_onnx_policy(
     try:
         session = ort.InferenceSession(os.fspath(path), options, providers=['CPUExecutionProvider'])
     except Exception as exc:  # onnxruntime reports corrupt models with several exception types
-        raise PolicyError(f'{where}: not a readable ONNX model ({_first_line(exc)})') from None
+        raise PolicyError(f'{where}: not a readable ONNX model ({first_line(exc)})') from None
     custom = session.get_modelmeta().custom_metadata_map
     if META_KEY not in custom:
         raise PolicyError(

@@ -1,6 +1,6 @@
 """Statistics of a boids swarm that do not depend on matching initial conditions.
 
-Used to compare our boids with the Unity recordings (issue 7). Every function takes
+Used to compare our boids with the Unity recordings. Every function takes
 boids3d trajectories ``[T, n, 6]`` (position, unit heading) or ``[S, T, n, 6]`` and
 returns per-frame values or a flat sample, so runs of different lengths compare.
 """

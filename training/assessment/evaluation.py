@@ -1,6 +1,6 @@
 """Evaluating a policy file against ground truth (the library behind ``python -m training.evaluate``
-and ``training.demo``): rollouts from the test split, metric curves, snapshots, the goals of
-issue 4, the scaling study (boids3d through :mod:`training.assessment.scaling`), ``results.json`` and
+and ``training.demo``): rollouts from the test split, metric curves, snapshots, the goals,
+the scaling study (boids3d through :mod:`training.assessment.scaling`), ``results.json`` and
 ``summary.md``. Shapes: S rollouts, T frames, n robots, d state entries.
 """
 
@@ -28,7 +28,7 @@ from . import figures
 from .scores import final_metrics, rollout_policy
 from .stats import describe
 
-# Goals of issue 4 (reported, not enforced).
+# The goals a policy is reported against (not enforced).
 GOALS = {
     'flock2d': 'mean final avd <= 0.05; mean final amd within 15% of ground truth; min distance after 1 s > 0.3',
     'boids3d': 'final amd within 25% of ground truth; mean POD-KLD <= 0.05; >= 18 of 20 rollouts stay in the cube',
@@ -36,7 +36,7 @@ GOALS = {
 
 
 def goal_check(scenario: str, fm: Dict[str, Any]) -> Dict[str, Any]:
-    """Pass/fail per goal of issue 4 from :func:`final_metrics` of the test rollouts."""
+    """Pass/fail per goal from :func:`final_metrics` of the test rollouts."""
     amd_p, amd_t = np.mean(fm['amd_final']), np.mean(fm['truth_amd_final'])
     rel = abs(amd_p - amd_t) / amd_t
     if scenario == 'flock2d':
@@ -283,7 +283,7 @@ def write_summary(path: str, r: Dict[str, Any]) -> None:
         )
     lines += [
         '',
-        f'Goals (issue 4): {r["goals"]}',
+        f'Goals: {r["goals"]}',
         '',
         '```',
         *(f'{k}: {v}' for k, v in r['goal_check'].items()),

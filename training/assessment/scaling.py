@@ -1,4 +1,4 @@
-"""The paper's 3D scaling study (issue 17) as a library: a boids3d policy at 10 to 90 boids in the
+"""The paper's 3D scaling study as a library: a boids3d policy at 10 to 90 boids in the
 fixed ±5 cube (the study is described in :mod:`training.studies.scaling3d`; ``training.evaluate --scaling``
 runs it, ``python -m training.studies.scaling3d --merge`` joins runs).
 
@@ -34,7 +34,7 @@ __all__ = [
     'GOALS',
 ]
 
-#: Goals of issue 17 at these sizes: amd within 15 % of the ground truth, no boid leaving the cube
+#: Goals at these sizes: amd within 15 % of the ground truth, no boid leaving the cube
 #: in at least 14 of 15 starts.
 GOAL_SIZES = (50, 90)
 GOAL_AMD_REL = 0.15
@@ -62,7 +62,7 @@ def leaving(states: np.ndarray, box: float) -> np.ndarray:
     """Where each boid leaves the cube: ``states [S, T, n, 6]`` -> ``[S, T, n]``, True at frame t when
     the boid is outside at t and was inside at some frame before t.
 
-    The one definition of "a boid leaves the cube" (issue 17): a boid that starts outside (the
+    The one definition of "a boid leaves the cube": a boid that starts outside (the
     Unity spawn ball of radius 5 touches the walls) has not left; it leaves if it gets in and then
     goes out again. Frame 0 is never a leaving frame.
     """
@@ -302,7 +302,7 @@ def merge(studies: Sequence[Dict[str, Any]]) -> Dict[str, Any]:
 
 
 def goal_check(rows: Sequence[Dict[str, Any]], ics: int) -> Dict[str, Any]:
-    """Pass/fail of issue 17's goals at each of ``GOAL_SIZES`` present in ``rows``.
+    """Pass/fail of the goals at each of ``GOAL_SIZES`` present in ``rows``.
 
     ``starts_inside`` counts the starts in which no boid leaves the cube (:func:`leaving`: a boid
     spawned outside, which the Unity spawn ball of radius 5 allows, has not left). ``spawn_outside``
@@ -348,7 +348,7 @@ def summary_lines(s: Dict[str, Any]) -> List[str]:
         )
     lines += [
         '',
-        f'Goals (issue 17): {s["goals"]}',
+        f'Goals: {s["goals"]}',
         '',
         '```',
         *(f'{k}: {v}' for k, v in s['goal_check'].items()),

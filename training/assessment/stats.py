@@ -1,4 +1,5 @@
-"""Small statistics of repeated runs: mean with a 95% confidence half-width, and one summary dict."""
+"""Small statistics of repeated runs: the one 95% interval of a mean (normal approximation, or
+Student's t for a handful of runs), and one summary dict."""
 
 from __future__ import annotations
 
@@ -6,14 +7,32 @@ from typing import Dict, Sequence, Tuple
 
 import numpy as np
 
+__all__ = ['mean_ci', 'interval', 'describe']
 
-def mean_ci(x: np.ndarray, axis: int = 0) -> Tuple[np.ndarray, np.ndarray]:
-    """Mean and 95% confidence half-width (normal approximation) along ``axis``."""
+
+def mean_ci(x: np.ndarray, axis: int = 0, t: bool = False) -> Tuple[np.ndarray, np.ndarray]:
+    """Mean and 95% confidence half-width along ``axis`` (zero for one value): quantile times
+    std (ddof 1) / sqrt(n), the quantile 1.96 (normal approximation) or, with ``t``, Student's
+    t with n - 1 degrees of freedom (honest for a few runs)."""
     x = np.asarray(x, dtype=np.float64)
     n = x.shape[axis]
     mean = x.mean(axis=axis)
-    half = 1.96 * x.std(axis=axis, ddof=1) / np.sqrt(n) if n > 1 else np.zeros_like(mean)
-    return mean, half
+    if n <= 1:
+        return mean, np.zeros_like(mean)
+    if t:
+        from scipy import stats  # only the t quantile needs scipy
+
+        quantile = stats.t.ppf(0.975, n - 1)
+    else:
+        quantile = 1.96
+    return mean, quantile * x.std(axis=axis, ddof=1) / np.sqrt(n)
+
+
+def interval(values: Sequence[float]) -> Dict[str, float]:
+    """Mean and 95% t interval of ``values [S]``: ``{'mean', 'lo', 'hi'}``."""
+    mean, half = mean_ci(np.asarray(values, dtype=np.float64).ravel(), t=True)
+    mean, half = float(mean), float(half)
+    return {'mean': mean, 'lo': mean - half, 'hi': mean + half}
 
 
 def describe(values: Sequence[float]) -> Dict[str, float]:

@@ -10,12 +10,14 @@ from typing import Any, Optional
 import numpy as np
 
 
-def write_json(path: str, obj: Any) -> None:
+def write_json(path: str, obj: Any, indent: int = 2, sort_keys: bool = True) -> None:
+    """``obj`` as JSON at ``path`` (numpy scalars and arrays as numbers and lists), atomically:
+    a crash leaves the old file or the new one, never half of one."""
     from knode_swarm_ros.core.trajectory import atomic_write
 
     def write(tmp):
         with open(tmp, 'w') as fh:
-            json.dump(obj, fh, indent=2, sort_keys=True, default=_json_default)
+            json.dump(obj, fh, indent=indent, sort_keys=sort_keys, default=_json_default)
             fh.write('\n')
 
     atomic_write(path, write)

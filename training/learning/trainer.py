@@ -121,7 +121,7 @@ class Trainer:
         # the code that trains is the code at the start (a tree edited during a run must not
         # change what the policy says it came from)
         self.code = code_provenance()
-        # Several files may hold swarms of different sizes (issue 13): the neighbour matrix has
+        # Several files may hold swarms of different sizes: the neighbour matrix has
         # k rows whatever n is, so their samples train one size-agnostic policy (training.datasets).
         pc, nc = cfg['policy'], cfg['noise']
         std = math.sqrt(nc['variance'])
@@ -323,7 +323,7 @@ class Trainer:
         spread_key = 'avd_final' if self.spec.name == 'flock2d' else 'pod_kld'
         if len(m.get(spread_key, [])) > 1:
             out[spread_key + '_se'] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
-        # the medians are what the score's amd term compares; the means are kept for older logs
+        # the medians are what the score's amd term compares; the means are reported beside them
         out['amd_median'] = float(np.median(m['amd_final']))
         out['truth_amd_median'] = float(np.median(m['truth_amd_final']))
         for key in (
@@ -459,7 +459,7 @@ class Trainer:
             self.log('starting model (multistep.init) ' + _selection_text(sel))
 
     def _export_twin(self, path: str) -> Dict[str, Any]:
-        """Write the ONNX twin of ``path`` (issue 15); a failed export is logged, never fatal:
+        """Write the ONNX twin of ``path``; a failed export is logged, never fatal:
         the TorchScript policy is the training artefact."""
         from .onnx_twin import export_onnx
 

@@ -29,7 +29,6 @@ default ``--out``). Exit status 0 ok, 2 bad input (the message names file and li
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -42,10 +41,11 @@ from knode_swarm_ros.core.groundtruth import boids as gt_boids
 from knode_swarm_ros.core.groundtruth import simulate
 from knode_swarm_ros.core.metrics import amd, pod_energy
 from training.assessment.boids_stats import alignment, flockmates, speeds, subgroups, wall_distance
-from training.assessment.stats import describe
+from training.assessment.stats import describe, mean_ci
 from training.data.unity.frames import MISMATCH, NOMINAL_DT, PRESET, model_check, simulate_with_frame_times
 from training.data.unity.recordings import UnityFormatError, read_recording
 from training.data.unity.statistics import STATS, compare_groups, pod_kld_pairs, run_statistics
+from training.learning.records import write_json
 
 __all__ = ['compare', 'write_summary', 'main']
 
@@ -145,8 +145,7 @@ def _figures(
     for g in groups:
         a = amd(data[g][..., :3])
         t = np.arange(a.shape[1]) * NOMINAL_DT
-        mean = a.mean(0)
-        half = 1.96 * a.std(0, ddof=1) / np.sqrt(a.shape[0]) if a.shape[0] > 1 else np.zeros_like(mean)
+        mean, half = mean_ci(a, axis=0)
         ax.plot(t, mean, color=COLOURS[g], lw=1.2, label=f'{LABELS[g]} ({a.shape[0]} runs)')
         ax.fill_between(t, mean - half, mean + half, color=COLOURS[g], alpha=0.25, lw=0)
     ax.set_xlabel('time [s] (frame / 60)')
@@ -398,8 +397,7 @@ def compare(
     if figures != '':
         results['figures'] = _figures(figures or out, data, frame_times, checks, kld, pod)
     results['seconds'] = round(time.perf_counter() - t0, 1)
-    with open(os.path.join(out, 'results.json'), 'w') as fh:
-        json.dump(results, fh, indent=1)
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     write_summary(os.path.join(out, 'summary.md'), results)
     log(f'wrote {os.path.join(out, "results.json")} and summary.md ({results["seconds"]} s)')
     return results

@@ -1,5 +1,5 @@
 """How crowded a boids3d swarm is for a policy that senses its k-1 closest neighbours within d_cr
-(issue 17: why the learnt swarm departs from the boids at larger sizes).
+(why the learnt swarm departs from the boids at larger sizes).
 
     python -m training.studies.crowding out/scaling3d_own/results.json --data data/boids3d.npz [--d-cr 2 --k 6]
 

@@ -3,8 +3,8 @@
     python -m training.studies.knowledge_variant knode_swarm_ros/policies/boids3d_unity.pt --set collision_d0=0.5 \\
         --out out/ablation/unity_d0_0.5.pt
 
-Issue 17 asks why the Unity-trained policy's spacing piles up just below the collision term's range
-d0 = 1 at 90 boids. Changing d0 (or switching the term off) in the trained policy, with the
+The Unity-trained policy's spacing piles up just below the collision term's range d0 = 1 at 90
+boids. Changing d0 (or switching the term off) in the trained policy, with the
 network's parameters and the learnt gains untouched, tells whether the knowledge term sets that
 floor: if it does, the spacing follows d0. The result is not a trained model (the network was
 fitted with the original term) and says so in ``knode.json`` -> ``provenance.knowledge_variant``.

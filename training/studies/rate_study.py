@@ -1,4 +1,4 @@
-"""Deployed at its rate, does a policy do what its offline rollout does? (issue 19)
+"""Deployed at its rate, does a policy do what its offline rollout does?
 
     python -m training.studies.rate_study --data data/flock2d.npz --out out/rate_study \
         --case 20=knode_swarm_ros/policies/flock2d_20hz.pt --starts 10 --seconds 20 --realtime

@@ -18,7 +18,6 @@ seed 0), and the link model's draws are seeded per setting.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -31,6 +30,8 @@ from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.groundtruth import tanner
 from knode_swarm_ros.core.link import LinkConfig, link_rollout
+from training.assessment.stats import interval
+from training.learning.records import write_json
 
 LOSSES = (0.0, 0.05, 0.1, 0.2, 0.3)
 DELAY_UNITS = (0, 1, 2, 3, 4, 5)
@@ -50,20 +51,6 @@ def local_tanner(limit: Optional[float]) -> Callable[[np.ndarray, np.ndarray], n
         return np.clip(u, -limit, limit) if limit else u
 
     return policy
-
-
-def interval(values: np.ndarray) -> Dict[str, float]:
-    """Mean and 95 % t interval of ``values [S]``."""
-    from scipy import stats
-
-    values = np.asarray(values, dtype=np.float64)
-    mean = float(values.mean())
-    half = (
-        float(stats.t.ppf(0.975, values.size - 1) * values.std(ddof=1) / np.sqrt(values.size))
-        if values.size > 1
-        else 0.0
-    )
-    return {'mean': mean, 'lo': mean - half, 'hi': mean + half}
 
 
 def min_pair_distance(states: np.ndarray) -> np.ndarray:
@@ -146,11 +133,7 @@ def run(
         'rows': rows,
         'goal': goal,
     }
-    os.makedirs(out, exist_ok=True)
-    tmp = os.path.join(out, f'.results.json.tmp{os.getpid()}')
-    with open(tmp, 'w') as fh:
-        json.dump(results, fh, indent=1)
-    os.replace(tmp, os.path.join(out, 'results.json'))
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     figure(results, os.path.join(out, 'robustness.png'))
     return results
 

@@ -1,4 +1,4 @@
-"""The paper's 3D scaling study (issue 17): a boids3d policy at 10 to 90 boids in the fixed ±5 cube.
+"""The paper's 3D scaling study: a boids3d policy at 10 to 90 boids in the fixed ±5 cube.
 
     python -m training.evaluate --policy knode_swarm_ros/policies/boids3d_unity.pt --preset published \\
         --out out/scaling3d_unity --scaling --sizes 10 20 30 40 50 60 70 80 90 --ics 15 --scaling-steps 1700

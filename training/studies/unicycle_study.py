@@ -40,10 +40,12 @@ from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.core.unicycle import UnicycleLimits, UnicycleMapper
 from knode_swarm_ros.logic.contract.rep105 import fields_to_point_state, fields_to_state, yaw_of
 from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim
+from training.assessment.stats import interval
+from training.learning.records import write_json
 
-from .robustness import interval
-
-SHIPPED = os.path.join(os.path.dirname(__file__), '..', 'knode_swarm_ros', 'policies', 'flock2d_20hz.pt')
+SHIPPED = os.path.join(
+    os.path.dirname(__file__), '..', '..', 'knode_swarm_ros', 'policies', 'flock2d_20hz.pt'
+)
 
 
 def unicycle_rollout(
@@ -180,9 +182,7 @@ def run(
         'flock_speed_double_integrator': interval(flock_speed),
         'rows': rows,
     }
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, 'results.json'), 'w') as fh:
-        json.dump(results, fh, indent=1)
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     return results
 
 
@@ -310,8 +310,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     results = run(a.policy, a.out, a.starts, 10, a.steps, a.seed, a.bind_speed)
     if a.ros:
         results['ros'] = ros_confirm(os.path.abspath(a.policy), a.out, a.steps, a.seed, a.bind_speed)
-        with open(os.path.join(a.out, 'results.json'), 'w') as fh:
-            json.dump(results, fh, indent=1)
+        write_json(os.path.join(a.out, 'results.json'), results, indent=1, sort_keys=False)
     return 0
 
 

@@ -17,7 +17,6 @@ boids are chaotic and no rollout stays on the recorded path. Writes ``results.js
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -29,6 +28,7 @@ from knode_swarm_ros.core import PolicyError, amd, load_policy, load_trajectorie
 from knode_swarm_ros.core.cli import cli
 from training.assessment.stats import describe, mean_ci
 from training.data.unity.statistics import run_statistics
+from training.learning.records import write_json
 
 STATS = ('speed_mean', 'alignment', 'flockmates', 'subgroups_mean', 'wall_distance', 'amd_mean')
 COLOURS = ['tab:red', 'tab:orange', 'tab:green', 'tab:purple', 'tab:brown', 'tab:pink', 'tab:gray']
@@ -157,8 +157,7 @@ def evaluate_policies(
     fig_dir = figures or out
     if figures != '':
         results['figures'] = _figures(fig_dir, curves, klds, [n for n, _, _ in loaded])
-    with open(os.path.join(out, 'results.json'), 'w') as fh:
-        json.dump(results, fh, indent=1)
+    write_json(os.path.join(out, 'results.json'), results, indent=1, sort_keys=False)
     _summary(os.path.join(out, 'summary.md'), results)
     log(f'wrote {out}/results.json and summary.md')
     return results

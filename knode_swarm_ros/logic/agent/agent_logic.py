@@ -44,12 +44,12 @@ shapes, and this makes a lockstep run equal :func:`knode_swarm_ros.core.rollout`
 Commands are saturated per axis by :func:`knode_swarm_ros.core.saturation.saturate` at the
 policy's ``command_limit``, lowered (never raised) by the ``command_limit`` parameter.
 
-A process that hosts several robots (``agents``, :mod:`.hosted_logic`) runs one AgentLogic per
+A process that hosts several robots (``agents``, :mod:`.hosted`) runs one AgentLogic per
 robot and evaluates their policies together: ``lockstep_next`` / ``tick_next`` stop short of the
 policy call and hand back a :class:`Request` (own state and the rows heard), :func:`build_matrices`
 builds Y_i and the mask of many requests at once, and ``finish(request, u)`` applies the command
 exactly as ``lockstep_poll`` / ``tick`` do, which are those steps for one request with the
-policy called in between (:func:`.policy_call.evaluate_rows`).
+policy called in between (:func:`.batch.evaluate_batch`).
 """
 
 from __future__ import annotations
@@ -63,10 +63,9 @@ from knode_swarm_ros.core.saturation import effective_limit, stop_command
 from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.logic.common import MODES, ConfigError
 
-from .batch import Request, build_matrices, clean_commands
+from .batch import Request, build_matrices, clean_commands, evaluate_batch
 from .control_period import RATE_CHECKS, check_control_period
 from .hearing import DROP_REASONS, Counters, Hearing, Rows
-from .policy_call import evaluate_rows
 from .realtime_tick import TICK_ON, TickOnState
 
 __all__ = [
@@ -384,8 +383,7 @@ class AgentLogic:
         timed_out = wall - lock.pending_since >= self.config.state_timeout
         # Fewer states of step `need` filed than the robots waited for (the peers not left out, and
         # this one when its own is among them): one is missing, no need to look which.
-        waited = len(self.ids) - len(lock.gone) - (self.buffer.get(self.me, need) is None)
-        if not timed_out and self.hearing.count_at(need) < waited:
+        if not timed_out and not self.hearing.complete(need, len(self.ids) - len(lock.gone), self.me):
             return None
         rows = self.hearing.exact(need)  # the snapshot every robot of the process asking for `need` shares
         missing = (
@@ -505,16 +503,15 @@ class AgentLogic:
         build_matrices(requests, self.spec.position_dim, self.d_cr, self.k)
 
     @property
-    def parity_rows(self) -> bool:
-        """Evaluate in a batch shaped like the offline rollout's (one row per robot, this robot's
-        at its index): lockstep with ``parity_batch`` and more than one robot."""
-        return self.config.parity_batch and self.config.mode == 'lockstep' and len(self.ids) > 1
+    def parity_index(self) -> Optional[Dict[int, int]]:
+        """``{robot: swarm index}`` when the policy is evaluated in a batch shaped like the
+        offline rollout's (lockstep with ``parity_batch`` and more than one robot), else None."""
+        parity = self.config.parity_batch and self.config.mode == 'lockstep' and len(self.ids) > 1
+        return self.index if parity else None
 
     def evaluate(self, Y: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """The policy's command ``[m]`` for one ``Y [k, d]``, ``mask [k]`` (before the agent's clip)."""
-        if self.parity_rows:
-            return evaluate_rows(self.policy, Y[None], mask[None], [self.index[self.me]], len(self.ids))[0]
-        return evaluate_rows(self.policy, Y[None], mask[None])[0]
+        return evaluate_batch(self.policy, Y[None], mask[None], [self.me], self.parity_index)[0]
 
     def _request(self, step: int, stamp: int, own: np.ndarray, rows: Rows) -> Request:
         return Request(int(step), int(stamp), self.me, own, rows)

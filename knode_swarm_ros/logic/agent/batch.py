@@ -2,9 +2,10 @@
 
 :class:`Request`: a command waiting for its policy output; :func:`build_matrices` fills the
 neighbour matrices of many requests with one core call per snapshot of rows;
-:func:`clean_commands` turns policy outputs into the commands an agent publishes. A lone agent
+:func:`evaluate_batch` calls the policy once for all of them and :func:`clean_commands` turns
+its outputs into the commands an agent publishes. A lone agent
 calls them with one request (:class:`.agent_logic.AgentLogic`), a hosting process with all its
-robots' (:class:`.hosted_logic.HostedAgents`): the same code.
+robots' (:class:`.hosted.HostedAgents`): the same code.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from knode_swarm_ros.core.network import neighbour_matrix_rows
 from knode_swarm_ros.core.saturation import saturate
 
 from .hearing import Rows
+from .policy_call import evaluate_rows
 
-__all__ = ['Request', 'build_matrices', 'clean_commands']
+__all__ = ['Request', 'build_matrices', 'clean_commands', 'evaluate_batch']
 
 
 @dataclass
@@ -55,6 +57,24 @@ def build_matrices(requests: Sequence[Request], position_dim: int, d_cr: float, 
         )
         for r, y, m in zip(group, Y, mask):
             r.Y, r.mask = y, m
+
+
+def evaluate_batch(
+    policy,
+    Y: np.ndarray,
+    mask: np.ndarray,
+    robots: Sequence[int],
+    parity_index: Optional[Dict[int, int]] = None,
+) -> np.ndarray:
+    """The policy's outputs ``[B, m]`` for the matrices ``Y [B, k, d]``, ``mask [B, k]`` of
+    ``robots [B]``, in one call.
+
+    ``parity_index`` ``{robot: swarm index}`` of every robot of the swarm: the batch is shaped
+    like the offline rollout's, each robot's matrix at its index (parity rows,
+    :mod:`.policy_call`); None: a batch of exactly B."""
+    if parity_index is None:
+        return evaluate_rows(policy, Y, mask)
+    return evaluate_rows(policy, Y, mask, [parity_index[rid] for rid in robots], len(parity_index))
 
 
 def clean_commands(U: np.ndarray, limit: Optional[float]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:

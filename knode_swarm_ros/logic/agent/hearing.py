@@ -1,6 +1,6 @@
 """What an agent process hears, filed once: the states, why some were dropped, and snapshots.
 
-A lone agent has one :class:`Hearing`. A process hosting several robots (:mod:`.hosted_logic`)
+A lone agent has one :class:`Hearing`. A process hosting several robots (:mod:`.hosted`)
 has one for all of them: its robots subscribe to the same topics and check every state by the
 same rules on the same clock, so each robot's own buffer would hold exactly the same states
 (the same drops, the same duplicates); the process files each state once and every hosted
@@ -143,6 +143,14 @@ class Hearing:
     def count_at(self, step: int) -> int:
         """States filed at exactly ``step`` (never fewer than the buffer holds there)."""
         return self._count.get(step, 0)
+
+    def complete(self, step: int, expected: int, me: Optional[int] = None) -> bool:
+        """The states of ``step`` are all in for robot ``me``, which awaits ``expected`` robots
+        (itself included): filed by at least ``expected``, one fewer when ``me``'s own state of
+        ``step`` is lost (it is not awaited). ``me`` None: all in for some robot whose own state
+        there may be lost (the hint to look at every waiting robot of a process)."""
+        own_lost = True if me is None else self.buffer.get(me, step) is None
+        return self.count_at(step) + own_lost >= expected
 
     def live_count(self, now_ns: Optional[int]) -> int:
         """Robots heard within ``state_timeout`` at ``now_ns`` (every robot of the swarm while the

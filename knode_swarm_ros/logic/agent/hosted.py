@@ -13,7 +13,7 @@ every robot with a pending step (polling any other would return nothing).
 
 Shared is plumbing only: one policy module, the Y_i of all due robots built by one core call per
 snapshot of rows (:func:`.agent_logic.build_matrices`), one policy call per tick
-(:func:`.policy_call.evaluate_rows`), with each robot's matrix at its swarm index in a
+(:func:`.batch.evaluate_batch`), with each robot's matrix at its swarm index in a
 rollout-shaped batch when the logic asks for parity rows, so that any split of the swarm over
 processes reproduces :func:`knode_swarm_ros.core.rollout` bit for bit, and the commands cleaned
 as one batch (:func:`.agent_logic.clean_commands`).
@@ -44,7 +44,7 @@ import numpy as np
 from knode_swarm_ros.logic.common import ConfigError
 
 from .agent_logic import AgentConfig, AgentLogic, Command, PolicyLike, Request, clean_commands
-from .policy_call import evaluate_rows
+from .batch import evaluate_batch
 
 __all__ = ['HostedAgents', 'parse_ids', 'format_ids']
 
@@ -168,7 +168,7 @@ class HostedAgents:
                     logic.react(robot, int(stamp_ns), step, True, wall)
                     self._touched.add(rid)
             self._most_left_out = max(len(logic.left_out) for logic in self.logics.values())
-        if accepted and self.hearing.count_at(step) >= len(self.ids) - 1 - self._most_left_out:
+        if accepted and self.hearing.complete(step, len(self.ids) - self._most_left_out):
             self._poll_all = True
         if accepted and self._rt_incomplete:  # a late state: the ticks computed without it open again
             for rid in list(self._rt_incomplete):
@@ -178,11 +178,7 @@ class HostedAgents:
                     self._rt_deadline = min(self._rt_deadline, ticks.deadline)
                 if ticks.incomplete is None or ticks.pending is not None:
                     self._rt_incomplete.discard(rid)
-        if (
-            accepted
-            and self._rt_active
-            and self.hearing.count_at(step) + 1 >= self.hearing.live_count(now_ns)
-        ):
+        if accepted and self._rt_active and self.hearing.complete(step, self.hearing.live_count(now_ns)):
             self._rt_poll = True
         return outcome
 
@@ -312,9 +308,7 @@ class HostedAgents:
         mask = np.stack([r.mask for r in requests])
         self.calls += 1
         self.evaluated += len(requests)
-        if self.logics[robots[0]].parity_rows:
-            return evaluate_rows(self.policy, Y, mask, [self.index[rid] for rid in robots], len(self.ids))
-        return evaluate_rows(self.policy, Y, mask)
+        return evaluate_batch(self.policy, Y, mask, robots, self._first.parity_index)
 
     # --- reporting -------------------------------------------------------------------------
     def drain_events(self) -> List[str]:

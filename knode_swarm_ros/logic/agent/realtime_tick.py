@@ -1,4 +1,4 @@
-"""Realtime ticks on the arrival of the robot's own state (``realtime_tick: state``, issue 19).
+"""Realtime ticks on the arrival of the robot's own state (``realtime_tick: state``).
 
 The offline rollout (``core.rollout``, docs/DESIGN.md "Rollout semantics") computes the command
 of step s from the states of step s (its own, and its neighbours' at s - tau) and holds it over
@@ -28,9 +28,9 @@ robot's own new state arrives keeps the command with the state it answers:
 * the rows are those a timer tick would use at that moment (``Hearing.delayed``), the command is
   stamped with the own state's stamp;
 * the control timer stays, as a watchdog: when the own state is older than ``state_timeout`` it
-  publishes the stop command (docs/DESIGN.md, "Saturation and stopping"), exactly as before.
+  publishes the stop command (docs/DESIGN.md, "Saturation and stopping").
 
-``realtime_tick: timer`` keeps the previous free-running timer (a robot whose odometry comes
+``realtime_tick: timer`` ticks on a free-running timer instead (a robot whose odometry comes
 slower than its control rate, or a comparison).
 """
 
@@ -113,10 +113,7 @@ class TickOnState:
             return None
         step, stamp = self.pending
         need = max(step - tau, self.first_step)
-        have = hearing.count_at(need) + (
-            hearing.buffer.get(me, need) is None
-        )  # (own lost at need: not awaited)
-        missing = have < hearing.live_count(now_ns)
+        missing = not hearing.complete(need, hearing.live_count(now_ns), me)
         if missing and (self.reopened or (wall < self.since + self.grace_s and not force)):
             return None
         self.pending, self.reopened = None, False

@@ -20,7 +20,7 @@ import struct
 from typing import Any, Dict, List, Optional, Tuple
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS
-from knode_swarm_ros.nodes.common.conversions import _CDR_LE, _pad, _put_string
+from knode_swarm_ros.nodes.common.conversions import CDR_LE, cdr_pad, cdr_put_string
 
 __all__ = ['assess', 'AgentHealth', 'HostedHealth', 'OK', 'WARN', 'ERROR']
 
@@ -98,20 +98,20 @@ def diagnostics_to_cdr(stamp_ns: int, entries) -> bytes:
     """The serialized form of a DiagnosticArray stamped ``stamp_ns`` (frame_id empty) holding one
     DiagnosticStatus per ``(level, name, message, hardware_id, [(key, value), ...])``, built
     directly: a hosting process reports 100s of robots (rclpy's message objects cost 10x)."""
-    buf = bytearray(_CDR_LE)
+    buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iII', stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000, 1))
     buf.append(0)  # frame_id '' (length 1 above, its NUL here)
-    _pad(buf, 4)
+    cdr_pad(buf, 4)
     buf.extend(struct.pack('<I', len(entries)))
     for level, name, message, hardware_id, values in entries:
         buf.append(level)
         for text in (name, message, hardware_id):
-            _put_string(buf, text)
-        _pad(buf, 4)
+            cdr_put_string(buf, text)
+        cdr_pad(buf, 4)
         buf.extend(struct.pack('<I', len(values)))
         for key, value in values:
-            _put_string(buf, key)
-            _put_string(buf, value)
+            cdr_put_string(buf, key)
+            cdr_put_string(buf, value)
     return bytes(buf)
 
 

@@ -26,6 +26,7 @@ from typing import Optional
 import numpy as np
 from rclpy.lifecycle import TransitionCallbackReturn
 
+from knode_swarm_ros.core.saturation import stop_command
 from knode_swarm_ros.logic.common import ConfigError
 from knode_swarm_ros.nodes.common.conversions import command_to_msg, time_msg
 
@@ -42,12 +43,13 @@ def brake_command(
     velocity_slice=slice(2, 4),
     command_dim: int = 2,
 ) -> np.ndarray:
-    """The stop command ``[m]``: zero velocity, or the acceleration -v / dt that stops a double
-    integrator in one step, saturated per axis at ``limit`` (None: none)."""
+    """The stop command ``[m]`` of a robot whose latest state is ``z_own [d]`` (None: not heard
+    yet, zero): :func:`knode_swarm_ros.core.saturation.stop_command` of its velocity
+    ``z_own[velocity_slice]`` held ``dt``, saturated per axis at ``limit`` (None or 0: none)."""
     if command != 'acceleration' or z_own is None:
         return np.zeros(command_dim)
-    u = -np.asarray(z_own, dtype=np.float64)[velocity_slice] / dt
-    return np.clip(u, -limit, limit) if limit else u
+    velocity = np.asarray(z_own, dtype=np.float64)[velocity_slice]
+    return stop_command(command, velocity, limit or None, dt)
 
 
 class ManagedAgentMixin:

@@ -14,21 +14,16 @@ from __future__ import annotations
 
 import sys
 import time
-from functools import partial
 
-from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS, AgentLogic
-from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
-from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
 from knode_swarm_ros.logic.common import (
     ConfigError,
     agent_status_topic,
     command_topic,
-    is_robot_frame,
     odom_topic,
     status_json,
 )
@@ -40,7 +35,6 @@ from knode_swarm_ros.nodes.common.conversions import (
     command_msg_type,
     command_to_msg,
     odom_fields_from_cdr,
-    odom_from_cdr,
     time_msg,
 )
 from knode_swarm_ros.nodes.common.executor import run_node
@@ -50,9 +44,10 @@ from .health import AgentHealth
 from .link import AgentLink
 from .managed import ManagedAgentMixin
 from .params import declare_agent_parameters
+from .plumbing import control_timers, decode_state, load_agent_policy, subscribe_odometry, warm_up_inputs
 from .unicycle import AgentUnicycle
 
-__all__ = ['AgentNode', 'main', 'load_agent_policy']
+__all__ = ['AgentNode', 'main']
 
 _EXPLAIN = {
     'malformed': 'that could not be decoded as nav_msgs/Odometry',
@@ -62,68 +57,6 @@ _EXPLAIN = {
     'too_old': 'older than state_timeout',
     'too_future': 'stamped further ahead of the clock than future_tolerance',
 }
-
-
-def load_agent_policy(
-    path: str,
-    scenario: str,
-    k: int,
-    d_cr: float,
-    tau: int,
-    dt: float,
-    runtime: str = 'auto',
-    threads: int = 1,
-    control_rate: float = 0.0,
-):
-    """Load the policy and check the optional parameters against its metadata.
-
-    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too); with a
-    realtime ``control_rate`` > 0 (and ``dt`` unset) the shipped one trained for that rate,
-    if there is one (:func:`.control_period.shipped_policy_for_rate`).
-    ``runtime`` (``policy_runtime``): ``auto`` runs the ONNX twin on onnxruntime when it exists
-    and onnxruntime is installed, else TorchScript (only that path imports torch).
-    ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
-    ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
-
-    Raises:
-        ConfigError: missing, corrupt or mismatched policy file; the message names the
-            parameter or the file and both values.
-    """
-    from knode_swarm_ros.core.policy_meta import PolicyError, PolicyMismatchError, shipped_policy_path
-    from knode_swarm_ros.core.policy_runtime import (
-        load_runtime,  # imports torch only for the TorchScript backend
-    )
-
-    if not path:
-        scenario = scenario or 'flock2d'
-        try:
-            path = str(
-                shipped_policy_for_rate(scenario, control_rate)[0]
-                if control_rate > 0 and dt <= 0
-                else shipped_policy_path(scenario)
-            )
-        except PolicyError as exc:
-            raise ConfigError(
-                f"parameter 'policy' is empty, so the shipped policy of scenario "
-                f'{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt'
-            ) from None
-    wanted = {
-        'scenario': scenario or None,
-        'k': k if k > 0 else None,
-        'd_cr': d_cr if d_cr > 0 else None,
-        'tau': tau if tau >= 0 else None,
-        'dt': dt if dt > 0 else None,
-    }
-    try:
-        return load_runtime(path, runtime, expect=wanted, threads=threads)
-    except PolicyMismatchError as exc:  # the parameter and the file disagree: name the parameter
-        raise ConfigError(
-            f'parameter {exc.key!r} = {exc.required!r} contradicts the policy file {path}, '
-            f'whose knode.json has {exc.key} = {exc.got!r} (leave {exc.key!r} unset to use the '
-            f"policy's value)"
-        ) from None
-    except PolicyError as exc:
-        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
 
 
 class AgentNode(ManagedAgentMixin, LifecycleNode):
@@ -188,27 +121,21 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             command_msg_type(self.spec), command_topic(robot_id, self.spec.command), qos.COMMAND
         )
         self.status_pub = self.create_publisher(String, agent_status_topic(robot_id), qos.STATUS)
-        # raw=True: serialized bytes, decoded by conversions.odom_from_cdr (3x cheaper than rclpy's)
-        self.odom_subs = [
-            self.create_subscription(
-                Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM, raw=True
-            )
-            for rid in ids
-        ]
+        self.odom_subs = subscribe_odometry(self, ids, self._on_odom)
         self.on_state = (
             self.logic.ticks is not None
         )  # realtime: ticks come with the own state (realtime_tick.py)
-        if mode == 'realtime':
-            self.control_timer = self.create_timer(1.0 / control_rate, self._on_tick)  # ROS clock (sim time)
-            if (
-                self.on_state
-            ):  # the grace of a tick waiting for its neighbours' states: armed by _realtime_poll
-                self.grace_timer = self.create_timer(
-                    self.logic.ticks.grace_s, self._on_grace, clock=self._wall
-                )
-                self._grace = GraceArm(self.grace_timer)
-        else:
-            self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
+        self.control_timer, self._grace = control_timers(
+            self,
+            mode,
+            control_rate,
+            self.logic.ticks.grace_s if self.on_state else None,
+            self._on_tick,
+            self._on_grace,
+            self._on_lockstep_timer,
+            self._wall,
+        )
+        self.grace_timer = None if self._grace is None else self._grace.timer
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
         self.get_logger().info(
             f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
@@ -219,22 +146,17 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self._publish_status()
 
     def _warm_up(self) -> None:
-        import numpy as np
-
-        Y = np.zeros((self.logic.k, self.spec.state_dim))
-        mask = np.zeros(self.logic.k, dtype=bool)
-        mask[0] = True
-        self.logic.evaluate(Y, mask)
+        Y, mask = warm_up_inputs(1, self.logic.k, self.spec.state_dim)
+        self.logic.evaluate(Y[0], mask[0])
 
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
+            robot, stamp, frame, z = decode_state(topic_robot, data, self.spec, self.twist_frame)
         except CdrError as exc:
             self.logic.malformed()
-            self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
+            self._note_drop('malformed', str(exc))
             return
-        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
         if self.unicycle.enabled and robot is not None:  # the policy sees the point ahead (unicycle_state)
             z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
         now = self.get_clock().now().nanoseconds

@@ -8,22 +8,21 @@ robot runs the same :class:`AgentLogic` as a lone agent (:class:`HostedAgents`):
 lockstep bookkeeping, neighbour matrix, counters, ``robot_<id>/cmd_*`` and
 ``robot_<id>/agent_status`` topics, and only what its robot hears. Shared plumbing: one raw
 subscription per robot's ``robot_<j>/odom``, each state decoded, checked and filed once in the
-process's :class:`.hearing.Hearing` (what each hosted robot would have filed alike), one
-executor, one policy module, one batched policy call per tick. The node is called
-``agents_<first>_<last>``.
+process's :class:`knode_swarm_ros.logic.agent.hearing.Hearing` (what each hosted robot would
+have filed alike), one executor, one policy module, one batched policy call per tick. The node
+is called ``agents_<first>_<last>``.
 
-Parameters: the lone agent's, declared by the same code (:mod:`.agent_params`), with ``ids``
-instead of ``id``. Not offered, refused at start with exit status 2 (:func:`refuse_per_robot_options`):
-the link model (``link_*``), ``managed: true`` and ``command_interface: unicycle``.
+Parameters: the lone agent's, declared by the same code (:mod:`knode_swarm_ros.nodes.agent.params`),
+with ``ids`` instead of ``id``. Not offered, refused at start with exit status 2
+(:func:`refuse_per_robot_options`): the link model (``link_*``), ``managed: true`` and
+``command_interface: unicycle``.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from functools import partial
 
-from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -31,25 +30,22 @@ from std_msgs.msg import String
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS
 from knode_swarm_ros.logic.agent.hosted import HostedAgents, format_ids, parse_ids
-from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
-from knode_swarm_ros.logic.common import (
-    ConfigError,
-    agent_status_topic,
-    command_topic,
-    is_robot_frame,
-    odom_topic,
-    status_json,
-)
+from knode_swarm_ros.logic.common import ConfigError, agent_status_topic, command_topic, status_json
 from knode_swarm_ros.logic.reporting import Throttle, write_json_report
 from knode_swarm_ros.nodes.agent.health import HostedHealth
-from knode_swarm_ros.nodes.agent.node import load_agent_policy
 from knode_swarm_ros.nodes.agent.params import declare_agent_parameters
+from knode_swarm_ros.nodes.agent.plumbing import (
+    control_timers,
+    decode_state,
+    load_agent_policy,
+    subscribe_odometry,
+    warm_up_inputs,
+)
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
     CdrError,
     command_msg_type,
     command_to_cdr,
-    odom_from_cdr,
     string_to_cdr,
 )
 from knode_swarm_ros.nodes.common.executor import run_node
@@ -79,7 +75,7 @@ def refuse_per_robot_options(node, robot_id: int, p, spec) -> None:
     :class:`ConfigError` naming it (exit status 2):
 
     * ``link_*`` (the link model): each robot would hear through its own lossy link, while the
-      robots of a process share what they hear (logic/agent/hearing.py);
+      robots of a process share what they hear (:mod:`knode_swarm_ros.logic.agent.hearing`);
     * ``managed: true``: a lifecycle is one robot's (configure, activate, brake to rest);
     * ``command_interface: unicycle``: a differential-drive robot is a real robot: run its ``agent``.
     """
@@ -145,25 +141,19 @@ class AgentsNode(Node):
         self.status_pubs = {
             rid: self.create_publisher(String, agent_status_topic(rid), qos.STATUS) for rid in hosted
         }
-        # One raw subscription per robot topic for every hosted robot (decoded and filed once).
-        self.odom_subs = [
-            self.create_subscription(
-                Odometry, odom_topic(rid), partial(self._on_odom, rid), qos.ODOM, raw=True
-            )
-            for rid in ids
-        ]
-        self.on_state = self.hosted._first.ticks is not None  # realtime: ticks come with the own states
-        if mode == 'realtime':
-            self.control_timer = self.create_timer(1.0 / p.control_rate, self._on_tick)  # ROS clock
-            if (
-                self.on_state
-            ):  # the grace of ticks waiting for their neighbours' states: armed by _realtime_poll
-                self.grace_timer = self.create_timer(
-                    self.hosted._first.ticks.grace_s, self._on_grace, clock=self._wall
-                )
-                self._grace = GraceArm(self.grace_timer)
-        else:
-            self.control_timer = self.create_timer(0.05, self._on_lockstep_timer, clock=self._wall)
+        self.odom_subs = subscribe_odometry(self, ids, self._on_odom)  # decoded and filed once for all
+        ticks = self.hosted.logics[hosted[0]].ticks
+        self.on_state = ticks is not None  # realtime: ticks come with the own states
+        self.control_timer, self._grace = control_timers(
+            self,
+            mode,
+            p.control_rate,
+            ticks.grace_s if self.on_state else None,
+            self._on_tick,
+            self._on_grace,
+            self._on_lockstep_timer,
+            self._wall,
+        )
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
         self._log_events()  # the control-period warning, once, at start
         self._publish_status()
@@ -175,22 +165,16 @@ class AgentsNode(Node):
         )
 
     def _warm_up(self, policy) -> None:
-        import numpy as np
-
-        Y = np.zeros((len(self.hosted.hosted), policy.k, self.spec.state_dim))
-        mask = np.zeros(Y.shape[:2], dtype=bool)
-        mask[:, 0] = True
-        policy(Y, mask)
+        policy(*warm_up_inputs(len(self.hosted.hosted), policy.k, self.spec.state_dim))
 
     # --- callbacks -----------------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
+            robot, stamp, frame, z = decode_state(topic_robot, data, self.spec, self.twist_frame)
         except CdrError as exc:
             self.hosted.malformed()
-            self._note_drop('malformed', f'{odom_topic(topic_robot)}: {exc}')
+            self._note_drop('malformed', str(exc))
             return
-        robot = topic_robot if is_robot_frame(frame, topic_robot) else None
         now = self.get_clock().now().nanoseconds
         outcome = self.hosted.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:

@@ -45,15 +45,12 @@ from nav_msgs.msg import Odometry
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario
 from knode_swarm_ros.logic.common import WORLD_FRAME, robot_frame
-from knode_swarm_ros.logic.contract import orientation
 from knode_swarm_ros.logic.contract.orientation import yaw_quaternion
 from knode_swarm_ros.logic.contract.rep105 import TWIST_FRAMES, fields_to_state, state_to_fields
 
 __all__ = [
     'time_msg',
     'time_ns',
-    'heading_to_quaternion',
-    'quaternion_to_heading',
     'yaw_quaternion',
     'state_to_odom',
     'odom_to_state',
@@ -69,6 +66,9 @@ __all__ = [
     'command_from_cdr',
     'command_fields_from_cdr',
     'string_to_cdr',
+    'CDR_LE',
+    'cdr_pad',
+    'cdr_put_string',
     'msg_to_command',
 ]
 
@@ -90,16 +90,6 @@ def time_msg(ns: int) -> Time:
 def time_ns(stamp: Time) -> int:
     """Integer nanoseconds of a ``builtin_interfaces/Time``."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def heading_to_quaternion(h) -> Tuple[float, float, float, float]:
-    """(x, y, z, w) of the rotation taking +x onto ``h`` (see :mod:`.orientation`)."""
-    return tuple(float(v) for v in orientation.heading_to_quaternion(h))
-
-
-def quaternion_to_heading(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """The image ``[3]`` of +x under the rotation (x, y, z, w) (see :mod:`.orientation`)."""
-    return orientation.quaternion_to_heading(np.array([x, y, z, w], dtype=np.float64))
 
 
 def state_to_odom(
@@ -146,17 +136,19 @@ class CdrError(KnodeError, ValueError):
     """Bytes that are not a serialized nav_msgs/Odometry."""
 
 
-_CDR_LE = b'\x00\x01\x00\x00'  # encapsulation: plain CDR, little endian
+CDR_LE = b'\x00\x01\x00\x00'  # encapsulation: plain CDR, little endian
 _ZEROS_36 = bytes(8 * 36)  # a zero covariance
 
 
-def _pad(buf: bytearray, to: int) -> None:
+def cdr_pad(buf: bytearray, to: int) -> None:
+    """Zero bytes up to the next multiple of ``to`` after the 4-byte encapsulation header."""
     buf.extend(bytes((-(len(buf) - 4)) % to))
 
 
-def _put_string(buf: bytearray, text: str) -> None:
+def cdr_put_string(buf: bytearray, text: str) -> None:
+    """Append a CDR string (aligned length, UTF-8 bytes, NUL)."""
     raw = text.encode('utf-8') + b'\x00'
-    _pad(buf, 4)
+    cdr_pad(buf, 4)
     buf.extend(struct.pack('<I', len(raw)))
     buf.extend(raw)
 
@@ -190,11 +182,11 @@ def fields_to_cdr(
     twist (linear ``[3]``, angular ``[3]``), covariances zero (e.g. ``odom_mapping.unicycle_fields``)."""
     if ns < 0:
         raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
-    buf = bytearray(_CDR_LE)
+    buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
-    _put_string(buf, frame_id)
-    _put_string(buf, robot_frame(robot) if child_frame_id is None else child_frame_id)
-    _pad(buf, 8)
+    cdr_put_string(buf, frame_id)
+    cdr_put_string(buf, robot_frame(robot) if child_frame_id is None else child_frame_id)
+    cdr_pad(buf, 8)
     buf.extend(struct.pack('<7d', *position, *quaternion))
     buf.extend(_ZEROS_36)
     buf.extend(struct.pack('<6d', *linear, *angular))
@@ -284,10 +276,10 @@ def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
     spec = _spec(scenario)
     u = np.asarray(u, dtype=np.float64)
     linear = (float(u[0]), float(u[1]), 0.0 if spec.command == 'acceleration' else float(u[2]))
-    buf = bytearray(_CDR_LE)
+    buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
-    _put_string(buf, WORLD_FRAME)
-    _pad(buf, 8)
+    cdr_put_string(buf, WORLD_FRAME)
+    cdr_pad(buf, 8)
     buf.extend(struct.pack('<6d', *linear, 0.0, 0.0, 0.0))
     return bytes(buf)
 
@@ -343,8 +335,8 @@ def command_fields_from_cdr(data: bytes, fields: Sequence[int]) -> Tuple[int, np
 def string_to_cdr(text: str) -> bytes:
     """The serialized form of ``std_msgs/String(data=text)`` (a hosting process publishes a
     status per robot)."""
-    buf = bytearray(_CDR_LE)
-    _put_string(buf, text)
+    buf = bytearray(CDR_LE)
+    cdr_put_string(buf, text)
     return bytes(buf)
 
 

@@ -22,6 +22,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from knode_swarm_ros.core.errors import first_line
 from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, ConfigError
 
 from . import exit_watchdog
@@ -63,11 +64,6 @@ def spin_until(
         executor.spin_until_future_complete(future, timeout_sec=_SLICE_S)
         if not context.ok() or (stop is not None and stop()):
             raise ExternalShutdownException()
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0].strip() if text else type(exc).__name__
 
 
 class _Interrupts:
@@ -279,7 +275,7 @@ def run_node(name: str, make_node: Callable[[], Node], on_exit: Callable[[Node],
                 # _Interrupts notes the signal.
                 rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
             except RCLError as exc:
-                raise ConfigError(f'cannot parse the ROS arguments: {_first_line(exc)}') from None
+                raise ConfigError(f'cannot parse the ROS arguments: {first_line(exc)}') from None
             if interrupts.signal is None:
                 interrupts.raising = True
                 try:

@@ -24,11 +24,11 @@ agents spread over processes and network namespaces.
 """
 
 from .cli import build_parser, main
-from .commands import PACKAGE, _scalar, build_commands, child_environment, node_commands
+from .commands import PACKAGE, build_commands, child_environment, node_commands
 from .plan import AGENT_MB, DOMAIN_RANGE, MAX_ROBOTS, NODE_MB, Plan, available_memory_mb, plan_run
 from .processes import Child, Children, start_child
 from .report import summarise, write_figure
-from .shm import SHM_DIR, _locked, shm_cleanup, shm_snapshot
+from .shm import SHM_DIR, lock_held, shm_cleanup, shm_snapshot
 from .supervise import run
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     'write_figure',
     'shm_snapshot',
     'shm_cleanup',
+    'lock_held',
     'SHM_DIR',
     'DOMAIN_RANGE',
     'MAX_ROBOTS',

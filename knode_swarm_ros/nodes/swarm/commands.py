@@ -13,12 +13,12 @@ from typing import Dict, List, Tuple
 
 from . import hosting
 
-__all__ = ['build_commands', 'node_commands', 'child_environment', 'PACKAGE']
+__all__ = ['build_commands', 'node_commands', 'child_environment', 'param_scalar', 'PACKAGE']
 
 PACKAGE = 'knode_swarm_ros'
 
 
-def _scalar(value) -> str:
+def param_scalar(value) -> str:
     """A value as the YAML scalar ``-p name:=value`` expects."""
     import yaml
 

@@ -87,7 +87,7 @@ def agent_commands(
     robots: int, per_process: int, python: List[str], package: str, params: str, run_dir
 ) -> Dict[str, List[str]]:
     """The agents' command lines by process name: ``agent_<i>`` (K = 1) or ``agents_<a>_<b>``."""
-    from .commands import _scalar  # the YAML scalar the ``-p`` flag expects
+    from .commands import param_scalar  # the YAML scalar the ``-p`` flag expects
 
     out: Dict[str, List[str]] = {}
     for group in split(range(robots), per_process):
@@ -104,7 +104,7 @@ def agent_commands(
             '-p',
             ids,
             '-p',
-            f'report:={_scalar(str(run_dir / f"{name}.json"))}',
+            f'report:={param_scalar(str(run_dir / f"{name}.json"))}',
         ]
     return out
 

@@ -24,7 +24,7 @@ __all__ = ['Plan', 'plan_run', 'available_memory_mb', 'DOMAIN_RANGE', 'MAX_ROBOT
 DOMAIN_RANGE = (30, 101)  # valid ids with the default port mapping, away from the default 0
 #: The most robots any node accepts (the 'robots' parameter range of agent, simulator, recorder).
 MAX_ROBOTS = 10_000
-#: Private memory of one process, measured 2026-11-30 with the CPU build of torch (docs/DESIGN.md):
+#: Private memory of one process, measured with the CPU build of torch (docs/DESIGN.md):
 #: an agent about 330 MB; the simulator and the recorder (numpy, no torch) far less.
 AGENT_MB, NODE_MB = 330, 150
 

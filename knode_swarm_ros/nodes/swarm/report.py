@@ -2,7 +2,7 @@
 
 For a flock2d run of a learnt policy the ground-truth swarm from the recording's first frame
 (:func:`knode_swarm_ros.core.groundtruth.follow`) is summarised and drawn beside it, so that
-one sees at a glance how close the learnt swarm comes to the one it learnt from (issue 13).
+one sees at a glance how close the learnt swarm comes to the one it learnt from.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ import re
 from pathlib import Path
 from typing import List, Optional
 
-__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup', 'shm_held_by', 'shm_left_by']
+__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup', 'shm_held_by', 'shm_left_by', 'lock_held']
 
 SHM_DIR = Path('/dev/shm')
 _SHM_RE = re.compile(r'^(sem\.)?(fastrtps|fastdds)_')
@@ -31,7 +31,8 @@ def shm_snapshot() -> set:
         return set()
 
 
-def _locked(path: Path) -> bool:
+def lock_held(path: Path) -> bool:
+    """Whether a live process holds the lock of the FastDDS lock file ``path``."""
     try:
         with open(path, 'ab') as fh:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -61,7 +62,7 @@ def shm_cleanup(before: set) -> List[str]:
     removed = []
     for base in sorted(bases):
         locks = [SHM_DIR / f'{base}{tail}' for tail in ('_el', '_sl')]
-        if any(lock.exists() and _locked(lock) for lock in locks):
+        if any(lock.exists() and lock_held(lock) for lock in locks):
             continue  # a live process owns it
         for victim in (base, f'{base}_el', f'{base}_sl', f'sem.{base}_mutex'):
             if victim in new:
@@ -120,7 +121,7 @@ def shm_left_by(held: set, domain: Optional[int] = None, before: frozenset = fro
     left = []
     for lock in sorted(held):
         base = lock[:-3]
-        if (SHM_DIR / lock).exists() and _locked(SHM_DIR / lock):
+        if (SHM_DIR / lock).exists() and lock_held(SHM_DIR / lock):
             continue
         port = _PORT_RE.match(base)
         if domain is not None and port and not 0 <= int(port.group(1)) - (7400 + 250 * domain) < 250:

@@ -5,7 +5,6 @@ Signals only set a flag (see ``on_signal``); :meth:`.processes.Children.pump` ra
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import time
@@ -13,6 +12,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from knode_swarm_ros.logic.common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
+from knode_swarm_ros.logic.reporting import write_json_report
 
 from . import hosting
 from .commands import child_environment, node_commands
@@ -68,7 +68,7 @@ def run(plan: Plan) -> int:
                     )
             failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
-            (plan.run_dir / 'pids.json').write_text(json.dumps(pids, indent=1))
+            write_json_report(str(plan.run_dir / 'pids.json'), pids, indent=1)
             if failed is not None:
                 code = failed
             else:

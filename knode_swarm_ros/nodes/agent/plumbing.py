@@ -1,0 +1,133 @@
+"""What the lone ``agent`` node and the hosting ``agents`` node share, so that neither imports
+the other's node module: loading the policy and warming it up, subscribing to every robot's
+odometry and decoding it, and the control timers of a mode.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Callable, Optional, Sequence, Tuple
+
+import numpy as np
+from nav_msgs.msg import Odometry
+
+from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
+from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
+from knode_swarm_ros.logic.common import ConfigError, is_robot_frame, odom_topic
+from knode_swarm_ros.nodes.common import qos
+from knode_swarm_ros.nodes.common.conversions import CdrError, odom_from_cdr
+
+__all__ = ['load_agent_policy', 'warm_up_inputs', 'subscribe_odometry', 'decode_state', 'control_timers']
+
+
+def load_agent_policy(
+    path: str,
+    scenario: str,
+    k: int,
+    d_cr: float,
+    tau: int,
+    dt: float,
+    runtime: str = 'auto',
+    threads: int = 1,
+    control_rate: float = 0.0,
+):
+    """Load the policy and check the optional parameters against its metadata.
+
+    ``path`` empty means the shipped policy of ``scenario`` (flock2d when empty too); with a
+    realtime ``control_rate`` > 0 (and ``dt`` unset) the shipped one trained for that rate,
+    if there is one (:func:`.control_period.shipped_policy_for_rate`).
+    ``runtime`` (``policy_runtime``): ``auto`` runs the ONNX twin on onnxruntime when it exists
+    and onnxruntime is installed, else TorchScript (only that path imports torch).
+    ``scenario`` (empty), ``k`` (0), ``d_cr`` (0.0),
+    ``tau`` (-1) and ``dt`` (0.0) at their "unset" values are taken from the policy.
+
+    Raises:
+        ConfigError: missing, corrupt or mismatched policy file; the message names the
+            parameter or the file and both values.
+    """
+    from knode_swarm_ros.core.policy_meta import PolicyError, PolicyMismatchError, shipped_policy_path
+    from knode_swarm_ros.core.policy_runtime import (
+        load_runtime,  # imports torch only for the TorchScript backend
+    )
+
+    if not path:
+        scenario = scenario or 'flock2d'
+        try:
+            path = str(
+                shipped_policy_for_rate(scenario, control_rate)[0]
+                if control_rate > 0 and dt <= 0
+                else shipped_policy_path(scenario)
+            )
+        except PolicyError as exc:
+            raise ConfigError(
+                f"parameter 'policy' is empty, so the shipped policy of scenario "
+                f'{scenario!r} is used, but {exc}; pass -p policy:=/path/to/policy.pt'
+            ) from None
+    wanted = {
+        'scenario': scenario or None,
+        'k': k if k > 0 else None,
+        'd_cr': d_cr if d_cr > 0 else None,
+        'tau': tau if tau >= 0 else None,
+        'dt': dt if dt > 0 else None,
+    }
+    try:
+        return load_runtime(path, runtime, expect=wanted, threads=threads)
+    except PolicyMismatchError as exc:  # the parameter and the file disagree: name the parameter
+        raise ConfigError(
+            f'parameter {exc.key!r} = {exc.required!r} contradicts the policy file {path}, '
+            f'whose knode.json has {exc.key} = {exc.got!r} (leave {exc.key!r} unset to use the '
+            f"policy's value)"
+        ) from None
+    except PolicyError as exc:
+        raise ConfigError(f"parameter 'policy' (policy_runtime {runtime}): {exc}") from None
+
+
+def warm_up_inputs(batch: int, k: int, state_dim: int) -> Tuple[np.ndarray, np.ndarray]:
+    """``Y [batch, k, d]`` zeros and ``mask [batch, k]`` with only the own row set: a first policy
+    call at start, so that the runtime's lazy set-up does not delay the first command."""
+    Y = np.zeros((batch, k, state_dim))
+    mask = np.zeros((batch, k), dtype=bool)
+    mask[:, 0] = True
+    return Y, mask
+
+
+def subscribe_odometry(node, ids: Sequence[int], on_odom: Callable[[int, bytes], None]) -> list:
+    """One raw subscription per robot's ``robot_<j>/odom``: ``on_odom(j, bytes)`` (decoded by
+    :func:`decode_state`, 3x cheaper than rclpy's message objects)."""
+    return [
+        node.create_subscription(Odometry, odom_topic(rid), partial(on_odom, rid), qos.ODOM, raw=True)
+        for rid in ids
+    ]
+
+
+def decode_state(
+    topic_robot: int, data: bytes, spec, twist_frame: str
+) -> Tuple[Optional[int], int, str, np.ndarray]:
+    """``(robot, stamp_ns, child_frame_id, z [d])`` of raw Odometry bytes heard on
+    ``robot_<topic_robot>/odom``; ``robot`` None when the child frame is not that robot's (the
+    logic files it as ``unknown_id``).
+
+    Raises:
+        CdrError: undecodable bytes; the message names the topic.
+    """
+    try:
+        stamp, frame, z = odom_from_cdr(data, spec, twist_frame)
+    except CdrError as exc:
+        raise CdrError(f'{odom_topic(topic_robot)}: {exc}') from None
+    return (topic_robot if is_robot_frame(frame, topic_robot) else None), stamp, frame, z
+
+
+def control_timers(
+    node, mode: str, control_rate: float, grace_s: Optional[float], on_tick, on_grace, on_lockstep, wall
+) -> Tuple[object, Optional[GraceArm]]:
+    """The control timer of ``mode`` and, realtime with ticks on the own state (``grace_s`` set),
+    the grace of ticks waiting for their neighbours' states: ``(control_timer, grace)``.
+
+    Realtime ticks ``on_tick`` at ``control_rate`` on the ROS clock (sim time); lockstep polls
+    ``on_lockstep`` every 50 ms of the wall clock ``wall``, so that silent peers time out."""
+    if mode != 'realtime':
+        return node.create_timer(0.05, on_lockstep, clock=wall), None
+    control = node.create_timer(1.0 / control_rate, on_tick)
+    if grace_s is None:
+        return control, None
+    return control, GraceArm(node.create_timer(grace_s, on_grace, clock=wall))
