@@ -125,7 +125,7 @@ def derive_states(
         if not np.any(valid):
             return None, (
                 f'{r.label} never moves faster than --min-speed {opts.min_speed} m/s, so its heading '
-                f'is undefined (try --use-orientation)'
+                f'is undefined (give headings: --use-orientation for a bag, hx, hy columns in a track file)'
             )
         idx = np.nonzero(valid)[0]
         nearest = idx[np.clip(np.searchsorted(idx, np.arange(L)), 0, idx.size - 1)]
