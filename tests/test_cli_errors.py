@@ -53,6 +53,7 @@ CASES = [
         '--link-delay-steps',
     ),
     ('import_bag', '{tmp}/missing_bag --scenario flock2d --rate 10 --out {tmp}/b.npz', 'missing_bag'),
+    ('import_tracks', '{tmp}/missing.csv --scenario flock2d --out {tmp}/t.npz', 'missing.csv'),
     ('import_unity', '{tmp}/missing.txt --out {tmp}/u.npz', 'missing.txt'),
     ('studies.compare_unity', '--unity {tmp}/missing.txt --out {tmp}/out', 'missing.txt'),
     ('studies.unity_retime', '{tmp}/missing.txt --out {tmp}/u.npz', 'missing.txt'),
@@ -159,12 +160,13 @@ def test_runner_leaves_bugs_and_argparse_alone():
 def test_domain_errors_share_the_base_and_stay_value_errors():
     from knode_swarm_ros.bag import BagError
     from knode_swarm_ros.logic.common import ConfigError as NodeConfigError
+    from training.data.tracks import TrackError
     from training.import_unity import UnityFormatError
     from training.learning.config import ConfigError as TrainingConfigError
     from training.learning.trainer import DataError
 
     assert NodeConfigError is TrainingConfigError is ConfigError
-    for cls in (PolicyError, TrajectoryError, ConfigError, BagError, DataError, UnityFormatError):
+    for cls in (PolicyError, TrajectoryError, ConfigError, BagError, TrackError, DataError, UnityFormatError):
         assert issubclass(cls, KnodeError) and issubclass(cls, ValueError) and cls.exit_status == 2, cls
 
 

@@ -4,6 +4,7 @@
     python -m training.import_bag BAG --scenario flock2d --topics '/robot_*/odom' --rate 100 --out data/real.npz
     python -m training.import_bag BAG --scenario boids3d --frames 'cf*' --rate 60 --out data/cf.npz     # /tf
     python -m training.import_bag BAG --scenario flock2d --id-map /vicon/cf3/pose=3 --id-map /vicon/cf7/pose=7 ...
+    python -m training.import_bag ep00.mcap ep01.mcap ... --scenario flock2d --topics '/robot_*/odom' --rate 100 --out data/ep.npz
 
 ``BAG`` is a rosbag2 bag directory (``metadata.yaml`` + sqlite3 or MCAP files, split bags in
 order), one ``.db3`` or ``.mcap`` file, or a ROS 1 ``.bag`` file; the ``rosbags`` package reads
@@ -12,8 +13,11 @@ geometry_msgs/PoseStamped, or the TransformStamped of one child frame within tf2
 resamples all robots onto one uniform grid at ``--rate`` (linear interpolation of positions);
 keeps only the time where every robot is observed; cuts the recording where any robot is
 silent longer than ``--max-gap``; derives the velocities (flock2d) or unit headings (boids3d)
-that the bag does not carry; and writes the trajectory file with ``dt = 1 / rate``. The steps
-live in :mod:`training.data.bags`; docs/import_bag.md documents every choice.
+that the bag does not carry; and writes the trajectory file with ``dt = 1 / rate``. Several bags
+are several episodes of one dataset (``meta.episodes``: the bag of each trajectory). Reading a
+bag lives in :mod:`training.data.bags`, the source-neutral steps (shared with
+``training.import_tracks``) in :mod:`training.data.timeline` and :mod:`training.data.derive`;
+docs/import_bag.md documents every choice.
 
 Exit status: 0 written; 2 bad input or command line (the message names the file, topic, frame
 or option; nothing is written).
@@ -25,12 +29,13 @@ import argparse
 import sys
 from typing import List, Optional, Sequence
 
+import numpy as np
+
 from knode_swarm_ros.bag import ODOMETRY, BagError, open_bag
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import get_scenario, parse_scenario_argument
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
-from training.data.bags.derive import derive_states, finite_difference, moving_average
 from training.data.bags.options import (
     GAP_FACTOR,
     ImportOptions,
@@ -41,30 +46,26 @@ from training.data.bags.options import (
 )
 from training.data.bags.report import build_meta, derivation, message_counts, summary_lines
 from training.data.bags.robots import read_robots
-from training.data.bags.timeline import segments, timeline, windows
+from training.data.derive import derive_states, finite_difference, moving_average
+from training.data.timeline import segments, stack_episodes, timeline
+from training.data.tracks import TrackError, dataset_meta
 
 __all__ = [
     'ImportOptions',
     'ImportResult',
     'import_bag',
+    'import_bags',
     'main',
     'BagError',
+    'TrackError',
     'parse_id_map',
     'moving_average',
     'finite_difference',
 ]
 
 
-def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
-    """Read ``bag_path`` and build the trajectories; raises :class:`BagError` on bad input.
-
-    Steps: open the bag; read and check each robot's samples; find the time base, gaps and the
-    stretches where all robots are observed; derive the states on the grid of each long enough
-    stretch; cut them into equal windows; record what was done.
-    """
-    check_options(opts)
-    dt = 1.0 / float(opts.rate)
-    notes: List[str] = []
+def read_episode(bag_path, opts: ImportOptions, dt: float, notes: List[str]):
+    """One bag: ``(bag, robots, info, timeline, segments meta, kept segments with their states)``."""
     bag = open_bag(bag_path)
     robots, info = read_robots(bag, opts, notes)
     if opts.use_twist:
@@ -72,30 +73,56 @@ def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
             if r.lin is None:
                 raise BagError(f'{r.topic}: --use-twist needs {ODOMETRY}, but it carries {r.type_name}')
     notes.extend(bag.notes)
-
     tl = timeline(robots, opts.max_gap, bag.path)
     metas, kept = segments(
         tl, opts, dt, lambda t, label: derive_states(t, robots, opts, dt, notes, label), bag.path
     )
-    states, traj_meta, T = windows(tl, metas, kept, opts.length, dt)
+    return bag, robots, info, tl, metas, kept
 
-    messages = message_counts(robots, tl, traj_meta, T, dt, info['ignored_sources'])
-    meta = build_meta(
-        opts,
-        bag,
-        robots,
-        info,
-        tl,
+
+def import_bags(bag_paths: Sequence, opts: ImportOptions) -> ImportResult:
+    """Read each bag as one episode and build one dataset; raises :class:`BagError` or
+    :class:`TrackError` on bad input.
+
+    Steps per bag: open it; read and check each robot's samples; find the time base, gaps and the
+    stretches where all robots are observed; derive the states on the grid of each long enough
+    stretch. Then cut all episodes into windows of one length T and record what was done
+    (``meta.episodes``: the bag of each trajectory).
+    """
+    check_options(opts)
+    dt = 1.0 / float(opts.rate)
+    notes: List[str] = []
+    episodes = [read_episode(path, opts, dt, notes) for path in bag_paths]
+    states, traj_meta, T = stack_episodes(
+        [(tl, metas, kept) for _, _, _, tl, metas, kept in episodes],
+        opts.length,
         dt,
-        metas,
-        traj_meta,
-        T,
-        states.shape[0],
-        derivation(opts, notes),
-        messages,
-        notes,
+        [str(ep[0].path) for ep in episodes],
     )
-    return ImportResult(states, dt, opts.scenario, meta, summary_lines(bag, robots, info, meta, states))
+    derived = derivation(opts, notes)
+    per_episode = []
+    for e, (bag, robots, info, tl, metas, _) in enumerate(episodes):
+        mine = [tm for tm in traj_meta if tm['episode'] == e]
+        messages = message_counts(robots, tl, mine, T, dt, info['ignored_sources'])
+        per_episode.append(build_meta(opts, bag, robots, info, tl, dt, metas, T, derived, messages))
+    meta = dataset_meta(
+        per_episode, [ep[0].path for ep in episodes], traj_meta, opts.test_trajectories, notes
+    )
+    summary = []
+    for e, (bag, robots, info, _, _, _) in enumerate(episodes):
+        mine = np.asarray(meta['episodes']) == e
+        view = dict(per_episode[e], notes=[] if len(episodes) > 1 else notes)
+        lines = summary_lines(bag, robots, info, view, states[mine])
+        summary.extend(lines if len(episodes) == 1 else [f'episode {e}: {line}' for line in lines])
+    if len(episodes) > 1:
+        summary.append(f'dataset: {states.shape[0]} trajectories from {len(episodes)} bags')
+        summary.extend(f'note: {note}' for note in notes)
+    return ImportResult(states, dt, opts.scenario, meta, summary)
+
+
+def import_bag(bag_path, opts: ImportOptions) -> ImportResult:
+    """Read one bag into a dataset (:func:`import_bags` of one episode)."""
+    return import_bags([bag_path], opts)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -106,8 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         'bag',
+        nargs='+',
         help='rosbag2 bag directory (metadata.yaml + .db3 or .mcap files), one .db3 or .mcap '
-        'file, or a ROS 1 .bag file',
+        'file, or a ROS 1 .bag file; several bags are several episodes of one dataset',
     )
     p.add_argument(
         '--scenario',
@@ -244,7 +272,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             stamp=args.stamp,
             test_trajectories=args.test_trajectories,
         )
-        result = import_bag(args.bag, opts)
+        result = import_bags(args.bag, opts)
         meta = dict(
             result.meta,
             command=' '.join(
@@ -252,7 +280,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             ),
         )
         save_trajectories(args.out, result.states, result.dt, result.scenario, meta)
-    except (BagError, TrajectoryError, OSError) as exc:
+    except (BagError, TrackError, TrajectoryError, OSError) as exc:
         raise KnodeError(f'{exc}; nothing written') from None
     for line in result.summary:
         print(line)

@@ -9,7 +9,8 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from knode_swarm_ros.bag import BagError
-from knode_swarm_ros.core import get_scenario
+
+from ..tracks import GAP_FACTOR, ResampleOptions, check_resample_options
 
 __all__ = [
     'ImportOptions',
@@ -22,32 +23,17 @@ __all__ = [
 ]
 
 FORMAT_VERSION = 1
-#: Default gap threshold in units of the slowest robot's median message interval.
-GAP_FACTOR = 5.0
 
 
 @dataclass
-class ImportOptions:
-    """What ``python -m training.import_bag`` is asked to do (see ``--help`` and docs/import_bag.md)."""
+class ImportOptions(ResampleOptions):
+    """What ``python -m training.import_bag`` is asked to do (see ``--help`` and docs/import_bag.md):
+    the shared :class:`~training.data.tracks.ResampleOptions` and which robots a bag holds."""
 
-    scenario: str
-    rate: float
     topics: Optional[List[str]] = None  # globs; default '/tf' with frames, or the id map's names
     frames: Optional[List[str]] = None  # child frame globs on TF topics
     id_map: Optional[Dict[str, int]] = None  # source name (topic or frame) -> robot id
-    max_gap: Optional[float] = None  # seconds; default GAP_FACTOR x slowest median interval
-    min_duration: float = 1.0  # seconds; shorter segments are dropped
-    length: Optional[int] = None  # frames per trajectory; default the shortest kept segment
-    smooth: str = 'none'  # none | moving-average | savgol
-    smooth_window: int = 5  # odd, in output samples
-    smooth_order: int = 2  # savgol polynomial order
-    use_twist: bool = False  # velocity (flock2d) / heading (boids3d) from Odometry twist
-    twist_frame: str = 'body'  # body (REP 105: rotate twist by the pose orientation) | world
-    use_orientation: bool = False  # boids3d heading from the pose orientation (+x axis)
-    heading_diff: str = 'backward'  # boids3d: backward | central differences
-    min_speed: float = 1e-3  # boids3d: slower samples take the nearest valid heading
     stamp: str = 'header'  # header | log
-    test_trajectories: int = 0  # the last K trajectories form meta.split.test
 
 
 @dataclass
@@ -108,26 +94,4 @@ def split_patterns(items: Optional[Sequence[str]]) -> Optional[List[str]]:
 
 
 def check_options(opts: ImportOptions) -> None:
-    spec = get_scenario(opts.scenario)
-    if not (np.isfinite(opts.rate) and opts.rate > 0):
-        raise BagError(f'--rate must be a positive number of Hz, got {opts.rate}')
-    if opts.use_twist and opts.use_orientation:
-        raise BagError('--use-twist and --use-orientation exclude each other')
-    if opts.use_orientation and spec.heading is None:
-        raise BagError('--use-orientation is for boids3d headings; flock2d needs no orientation')
-    if opts.smooth not in ('none', 'moving-average', 'savgol'):
-        raise BagError(f'--smooth {opts.smooth}: choose none, moving-average or savgol')
-    if opts.smooth != 'none' and (opts.smooth_window < 3 or opts.smooth_window % 2 == 0):
-        raise BagError(f'--smooth-window must be odd and >= 3, got {opts.smooth_window}')
-    if opts.smooth == 'savgol' and not (0 <= opts.smooth_order < opts.smooth_window):
-        raise BagError(f'--smooth-order must be >= 0 and below --smooth-window, got {opts.smooth_order}')
-    if opts.max_gap is not None and not opts.max_gap > 0:
-        raise BagError(f'--max-gap must be positive, got {opts.max_gap}')
-    if opts.length is not None and opts.length < 3:
-        raise BagError(f'--length must be at least 3 frames, got {opts.length}')
-    if opts.min_duration < 0:
-        raise BagError(f'--min-duration must be >= 0, got {opts.min_duration}')
-    if opts.test_trajectories < 0:
-        raise BagError(f'--test-trajectories must be >= 0, got {opts.test_trajectories}')
-    if opts.heading_diff not in ('backward', 'central'):
-        raise BagError(f'--heading-diff {opts.heading_diff}: choose backward or central')
+    check_resample_options(opts, BagError)

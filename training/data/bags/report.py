@@ -9,9 +9,9 @@ import numpy as np
 
 from knode_swarm_ros.core import get_scenario
 
+from ..timeline import Timeline
 from .options import FORMAT_VERSION, ImportOptions
 from .robots import Robot
-from .timeline import Timeline
 
 __all__ = ['message_counts', 'derivation', 'build_meta', 'summary_lines']
 
@@ -102,19 +102,12 @@ def build_meta(
     tl: Timeline,
     dt: float,
     segments,
-    traj_meta,
     T: int,
-    S: int,
     derived,
     messages,
-    notes: List[str],
 ) -> Dict[str, Any]:
-    """The trajectory file's ``meta`` (docs/import_bag.md, "Output")."""
-    k_test = min(opts.test_trajectories, S - 1) if S > 1 else 0
-    if k_test != opts.test_trajectories:
-        notes.append(
-            f'--test-trajectories {opts.test_trajectories}: only {S} trajectories; {k_test} held out'
-        )
+    """One bag's part of the trajectory file's ``meta`` (docs/import_bag.md, "Output"); the
+    trajectories, episodes, notes and split are added by :func:`training.data.tracks.dataset_meta`."""
     length_rule = '--length' if opts.length is not None else 'the shortest kept segment'
     return {
         'generator': 'training.import_bag',
@@ -156,11 +149,8 @@ def build_meta(
         'length': T,
         'length_rule': length_rule
         + '; longer segments are cut into windows of T frames sharing their boundary frame',
-        'trajectories': traj_meta,
         'derivation': derived,
         'messages': messages,
-        'notes': notes,
-        'split': {'train': list(range(S - k_test)), 'test': list(range(S - k_test, S))},
     }
 
 

@@ -9,29 +9,31 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.bag import SUPPORTED_TYPES, TF_MESSAGE, BagError, Sample, samples_of
+from knode_swarm_ros.bag import (
+    SUPPORTED_TYPES,
+    TF_MESSAGE,
+    BagError,
+    Sample,
+    quaternion_to_heading,
+    rotate_by_quaternion,
+    samples_of,
+)
 
+from ..tracks import Track
 from .options import ImportOptions
 
 __all__ = ['Robot', 'read_robots', 'robot_id']
 
 
 @dataclass
-class Robot:
-    """One robot's samples: raw while reading (``samples``), then as arrays (:func:`finalise`)."""
+class Robot(Track):
+    """One robot of a bag: raw samples while reading (``samples``), then arrays (:func:`finalise`);
+    ``pos`` is ``[m, 3]``, the given velocity is the twist, the given heading the orientation's +x axis."""
 
-    id: int
-    name: str  # topic, or child frame for TF
-    topic: str
-    type_name: str
-    ns: np.ndarray = None  # int64 stamps, strictly increasing
-    pos: np.ndarray = None  # [m, 3]
+    topic: str = ''
+    type_name: str = ''
     quat: np.ndarray = None  # [m, 4] (x, y, z, w)
     lin: Optional[np.ndarray] = None  # [m, 3] twist.linear or None
-    t: np.ndarray = None  # float seconds since t0
-    read: int = 0
-    duplicates: int = 0
-    non_finite: int = 0
     frame_ids: set = field(default_factory=set)
     samples: List[Sample] = field(default_factory=list)
 
@@ -42,6 +44,12 @@ class Robot:
             if self.name == self.topic
             else f'robot {self.id} (frame {self.name} on {self.topic})'
         )
+
+    def given_velocity(self, frame: str) -> np.ndarray:
+        return self.lin if frame == 'world' else rotate_by_quaternion(self.quat, self.lin)
+
+    def given_heading(self) -> np.ndarray:
+        return quaternion_to_heading(self.quat)
 
 
 def robot_id(name: str, label: str) -> int:
@@ -124,7 +132,7 @@ def read_robots(bag, opts: ImportOptions, notes: List[str]) -> Tuple[List[Robot]
                     if opts.id_map is not None
                     else robot_id(name, 'frame' if tf else 'topic')
                 )
-                robot = robots[name] = Robot(rid, name, topic, type_name)
+                robot = robots[name] = Robot(rid, name, topic=topic, type_name=type_name)
             elif robot.topic != topic:
                 raise BagError(
                     f'{path}: frame {name} appears on both {robot.topic} and {topic}; narrow --topics'

@@ -1,6 +1,7 @@
-"""What the bag lacks, derived on the grid: velocities (``position_velocity``, as flock2d) and unit
-headings (``position_heading``, as boids3d), from
-finite differences, the Odometry twist or the pose orientation (docs/import_bag.md)."""
+"""What the tracks lack, derived on the grid: velocities (``position_velocity``, as flock2d) and unit
+headings (``position_heading``, as boids3d), from finite differences of the positions, the given
+velocities (a bag's Odometry twist, a file's ``vx, vy``) or the given headings (a bag's pose
+orientation, a file's ``hx, hy``) (docs/import_bag.md)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,9 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.bag import BagError, quaternion_to_heading, rotate_by_quaternion
 from knode_swarm_ros.core import get_scenario
 
-from .options import ImportOptions
-from .robots import Robot
+from .tracks import ResampleOptions, Track, TrackError
 
 __all__ = ['finite_difference', 'moving_average', 'derive_states']
 
@@ -46,7 +45,7 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo).reshape(shape)
 
 
-def _smooth(v: np.ndarray, opts: ImportOptions, notes: List[str], label: str) -> np.ndarray:
+def _smooth(v: np.ndarray, opts: ResampleOptions, notes: List[str], label: str) -> np.ndarray:
     if opts.smooth == 'none':
         return v
     L = v.shape[0]
@@ -58,7 +57,7 @@ def _smooth(v: np.ndarray, opts: ImportOptions, notes: List[str], label: str) ->
     try:
         from scipy.signal import savgol_filter
     except ImportError:
-        raise BagError(
+        raise TrackError(
             '--smooth savgol needs scipy (pip install scipy), or use --smooth moving-average'
         ) from None
     if window <= opts.smooth_order:
@@ -68,40 +67,37 @@ def _smooth(v: np.ndarray, opts: ImportOptions, notes: List[str], label: str) ->
 
 
 def derive_states(
-    seg_t: np.ndarray, robots: List[Robot], opts: ImportOptions, dt: float, notes: List[str], label: str
+    seg_t: np.ndarray, robots: List[Track], opts: ResampleOptions, dt: float, notes: List[str], label: str
 ) -> Tuple[Optional[np.ndarray], Optional[str]]:
     """States ``[L, n, d]`` on the grid times ``seg_t``, or (None, reason) when undefined."""
     spec = get_scenario(opts.scenario)
     p = spec.position_dim
     L, n = seg_t.size, len(robots)
-    pos = np.empty((L, n, p))
-    for i, r in enumerate(robots):
-        for c in range(p):
-            pos[:, i, c] = np.interp(seg_t, r.t, r.pos[:, c])
 
-    def interp_twist() -> np.ndarray:
-        out = np.empty((L, n, 3))
+    def interp(values) -> np.ndarray:
+        """``[L, n, p]``: each robot's ``values(robot)[m, >= p]`` linearly interpolated at ``seg_t``."""
+        out = np.empty((L, n, p))
         for i, r in enumerate(robots):
-            lin = r.lin if opts.twist_frame == 'world' else rotate_by_quaternion(r.quat, r.lin)
-            for c in range(3):
-                out[:, i, c] = np.interp(seg_t, r.t, lin[:, c])
+            v = values(r)
+            for c in range(p):
+                out[:, i, c] = np.interp(seg_t, r.t, v[:, c])
         return out
 
+    pos = interp(lambda r: r.pos)
     if spec.state == 'position':  # nothing to derive
         return pos, None
-    if spec.velocity is not None:  # flock2d
+    if spec.velocity is not None:
         if opts.use_twist:
-            vel = interp_twist()[:, :, :p]
+            vel = interp(lambda r: r.given_velocity(opts.twist_frame))
         else:
             vel = _smooth(finite_difference(pos, dt, 'central'), opts, notes, label)
         return np.concatenate([pos, vel], axis=2), None
 
-    # boids3d headings
-    if opts.use_orientation:
-        head = np.empty((L, n, 3))
+    if opts.use_orientation:  # given headings, renormalised
+        head = np.empty((L, n, p))
         for i, r in enumerate(robots):
-            h_raw = quaternion_to_heading(r.quat)
-            for c in range(3):
+            h_raw = r.given_heading()[:, :p]
+            for c in range(p):
                 head[:, i, c] = np.interp(seg_t, r.t, h_raw[:, c])
             norm = np.linalg.norm(head[:, i], axis=1)
             bad = norm < 1e-6  # antipodal headings on both sides: take the nearer sample
@@ -111,11 +107,14 @@ def derive_states(
                     np.abs(r.t[idx - 1] - seg_t[bad]) <= np.abs(r.t[idx] - seg_t[bad]), idx - 1, idx
                 )
                 head[bad, i] = h_raw[nearer]
-                norm[bad] = 1.0
+                norm[bad] = np.linalg.norm(h_raw[nearer], axis=1)
+            if np.any(norm < 1e-12):
+                k = int(np.argmax(norm < 1e-12))
+                return None, f'{r.label} has a zero heading at t = {seg_t[k]:.3f} s'
             head[:, i] /= norm[:, None]
         return np.concatenate([pos, head], axis=2), None
     vel = (
-        interp_twist()
+        interp(lambda r: r.given_velocity(opts.twist_frame))
         if opts.use_twist
         else _smooth(finite_difference(pos, dt, opts.heading_diff), opts, notes, label)
     )
@@ -126,7 +125,7 @@ def derive_states(
         if not np.any(valid):
             return None, (
                 f'{r.label} never moves faster than --min-speed {opts.min_speed} m/s, so its heading '
-                f'is undefined (try --use-orientation)'
+                f'is undefined (give headings: --use-orientation for a bag, hx, hy columns in a track file)'
             )
         idx = np.nonzero(valid)[0]
         nearest = idx[np.clip(np.searchsorted(idx, np.arange(L)), 0, idx.size - 1)]

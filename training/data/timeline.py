@@ -1,5 +1,6 @@
-"""Where and when the robots are observed together: the time base, the gaps, the segments on the
-output grid, and the equal-length windows cut from them (docs/import_bag.md, "Resampling")."""
+"""Where and when the robots of one episode are observed together: the time base, the gaps, the
+segments on the output grid, and the equal-length windows cut from them (docs/import_bag.md,
+"Resampling"). Works on :class:`~training.data.tracks.Track` objects, whatever their source."""
 
 from __future__ import annotations
 
@@ -8,12 +9,9 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from knode_swarm_ros.bag import BagError
+from .tracks import GAP_FACTOR, ResampleOptions, Track, TrackError
 
-from .options import GAP_FACTOR, ImportOptions
-from .robots import Robot
-
-__all__ = ['Timeline', 'timeline', 'segments', 'windows']
+__all__ = ['Timeline', 'timeline', 'segments', 'common_length', 'windows', 'stack_episodes']
 
 Interval = Tuple[float, float]
 
@@ -48,10 +46,10 @@ def _intersect(a: List[Interval], b: List[Interval]) -> List[Interval]:
     return out
 
 
-def timeline(robots: List[Robot], max_gap: Optional[float], where) -> Timeline:
+def timeline(robots: List[Track], max_gap: Optional[float], where) -> Timeline:
     """Set each robot's ``t`` (seconds after the first stamp) and find the gaps (longer than
     ``max_gap``, default :data:`GAP_FACTOR` x the slowest median interval) and the stretches
-    where all robots are observed; ``where`` names the bag in errors."""
+    where all robots are observed; ``where`` names the source (bag, file) in errors."""
     t0_ns = min(int(r.ns[0]) for r in robots)
     for r in robots:
         r.t = (r.ns - t0_ns).astype(np.float64) * 1e-9
@@ -85,7 +83,7 @@ def timeline(robots: List[Robot], max_gap: Optional[float], where) -> Timeline:
         common = intervals if common is None else _intersect(common, intervals)
     gaps.sort(key=lambda g: (g['from'], g['robot']))
     if not common:
-        raise BagError(
+        raise TrackError(
             f'{where}: the robots are never all observed at the same time '
             f'({"; ".join(f"{r.label}: {r.t[0]:.3f}..{r.t[-1]:.3f} s" for r in robots)})'
         )
@@ -94,7 +92,7 @@ def timeline(robots: List[Robot], max_gap: Optional[float], where) -> Timeline:
 
 def segments(
     tl: Timeline,
-    opts: ImportOptions,
+    opts: ResampleOptions,
     dt: float,
     derive: Callable[[np.ndarray, str], Tuple[Optional[np.ndarray], Optional[str]]],
     where,
@@ -138,26 +136,36 @@ def segments(
         kept.append((seg, states))
     if not kept:
         why = '; '.join(f'[{s["start"]:.3f}, {s["end"]:.3f}] s: {s["reason"]}' for s in metas)
-        raise BagError(f'{where}: no segment is long enough to keep ({why})')
+        raise TrackError(f'{where}: no segment is long enough to keep ({why})')
     return metas, kept
 
 
-def windows(tl: Timeline, metas: List[Dict[str, Any]], kept, length: Optional[int], dt: float):
-    """Cut the kept segments into windows of T frames (``length``, default the shortest kept
-    segment) sharing their boundary frame: ``(states [S, T, n, d], trajectories meta, T)``."""
-    T = length if length is not None else min(s['frames'] for s, _ in kept)
+def common_length(kept_per_episode, length: Optional[int]) -> int:
+    """T of every trajectory: ``length`` if given, else the shortest kept segment of all episodes."""
+    if length is not None:
+        return length
+    return min(s['frames'] for kept in kept_per_episode for s, _ in kept)
+
+
+def windows(
+    tl: Timeline, metas: List[Dict[str, Any]], kept, T: int, dt: float, first: int = 0, episode: int = 0
+):
+    """Cut the kept segments into windows of T frames sharing their boundary frame:
+    ``(states [S, T, n, d], trajectories meta)``; the windows are trajectories ``first, first + 1, ...``
+    of the dataset, all from ``episode``."""
     out, traj_meta = [], []
     for seg, states in kept:
         seg['kept'] = True
         L = states.shape[0]
         start, end = 0, 0
         while start + T <= L:
-            seg['trajectories'].append(len(out))
+            seg['trajectories'].append(first + len(out))
             out.append(states[start : start + T])
             k = seg['grid_index'] + start
             t = tl.anchor + k * dt
             traj_meta.append(
                 {
+                    'episode': episode,
                     'segment': metas.index(seg),
                     'grid_index': k,
                     'frame_in_segment': start,
@@ -169,4 +177,25 @@ def windows(tl: Timeline, metas: List[Dict[str, Any]], kept, length: Optional[in
             end = start + T
             start += T - 1  # windows share their boundary frame: no transition is lost
         seg['unused_frames'] = L - end
-    return np.stack(out).astype(np.float64), traj_meta, T
+    return np.stack(out).astype(np.float64), traj_meta
+
+
+def stack_episodes(episodes, length: Optional[int], dt: float, where: List[str]):
+    """Several episodes, each ``(timeline, segments meta, kept)`` from :func:`segments`, into one
+    dataset: ``(states [S, T, n, d], trajectories meta with their episode, T)``. T is common to all
+    (:func:`common_length`); every episode must have the same number of robots (``where`` names
+    each episode's source in errors)."""
+    n = {e: kept[0][1].shape[1] for e, (_, _, kept) in enumerate(episodes)}
+    odd = [e for e in n if n[e] != n[0]]
+    if odd:
+        raise TrackError(
+            f'{where[odd[0]]}: {n[odd[0]]} robots, but {where[0]} has {n[0]}; the episodes of one '
+            f'dataset need the same number of robots'
+        )
+    T = common_length([kept for _, _, kept in episodes], length)
+    states, traj_meta = [], []
+    for e, (tl, metas, kept) in enumerate(episodes):
+        s, tm = windows(tl, metas, kept, T, dt, first=len(traj_meta), episode=e)
+        states.append(s)
+        traj_meta.extend(tm)
+    return np.concatenate(states), traj_meta, T
