@@ -72,6 +72,7 @@ class Snapshot:
     ids: List[int]
     step: Optional[int]  # newest step heard (from the stamps), None before any state
     stamp_ns: Optional[int]
+    lags: np.ndarray  # [n] int: steps each robot's state is behind ``step`` (0 for unheard robots)
     positions: np.ndarray  # [n, p]; robots never heard at the origin (health 'unheard')
     directions: np.ndarray  # [n, p]
     health: List[str]  # [n], one of HEALTH
@@ -172,11 +173,14 @@ class SwarmWatch:
             i = np.repeat(np.arange(len(rows)), index.shape[1])[valid.ravel()]
             links = np.stack([rows[i], rows[index.ravel()[valid.ravel()]]], axis=1)
         stamp = int(self.stamps.max()) if heard.any() else None
+        steps = np.rint(self.stamps / (self.dt * 1e9)).astype(np.int64)
+        lags = np.where(heard, steps.max() - steps, 0) if heard.any() else np.zeros(len(self.ids), np.int64)
         centre = tuple(float(c) for c in pos[heard, :2].mean(axis=0)) if heard.any() else (0.0, 0.0)
         return Snapshot(
             ids=list(self.ids),
             step=int(round(stamp / (self.dt * 1e9))) if stamp is not None else None,
             stamp_ns=stamp,
+            lags=lags,
             positions=pos,
             directions=direction,
             health=self.health(wall),
@@ -244,14 +248,16 @@ def _mm(values: np.ndarray) -> List[int]:
 
 
 def tick_message(snap: Snapshot) -> str:
-    """One tick as compact JSON: ``step``, ``c`` (view centre, m), ``p`` / ``v`` (positions in mm
-    and directions in mm/s, flattened ``[n * p]``), ``h`` (health, one letter per robot), ``l``
+    """One tick as compact JSON: ``step``, ``a`` (steps each robot's state is behind ``step``),
+    ``c`` (view centre, m), ``p`` / ``v`` (positions in mm and directions in mm/s, flattened
+    ``[n * p]``), ``h`` (health, one letter per robot), ``l``
     (links, flattened index pairs), ``m`` (metrics; null below 2 robots). Trails are the
     page's own (it keeps the positions it received)."""
     return json.dumps(
         {
             'type': 'tick',
             'step': snap.step,
+            'a': snap.lags.tolist(),
             'c': [round(snap.centre[0], 3), round(snap.centre[1], 3)],
             'p': _mm(snap.positions),
             'v': _mm(snap.directions),
@@ -265,11 +271,12 @@ def tick_message(snap: Snapshot) -> str:
 
 def decode_tick(text: str, position_dim: int) -> Dict:
     """A tick message back as arrays: ``positions [n, p]`` and ``directions [n, p]`` in metres,
-    ``links [L, 2]``, ``health`` names, ``centre``, ``step``, ``metrics``."""
+    ``links [L, 2]``, ``health`` names, ``centre``, ``step``, ``lags [n]``, ``metrics``."""
     msg = json.loads(text)
     names = {code: name for name, code in HEALTH_CODES.items()}
     return {
         'step': msg['step'],
+        'lags': np.asarray(msg['a'], dtype=np.int64),
         'centre': tuple(msg['c']),
         'positions': np.asarray(msg['p'], dtype=float).reshape(-1, position_dim) / MM,
         'directions': np.asarray(msg['v'], dtype=float).reshape(-1, position_dim) / MM,

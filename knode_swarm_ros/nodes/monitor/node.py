@@ -59,14 +59,14 @@ class MonitorNode(Node):
             self,
             'd_cr',
             0.0,
-            f'communication radius of the links (0: the policy default, {defaults["d_cr"]:g})',
+            f'communication radius of the links (0: the policy default, {default_d_cr:g})',
             float_range=(0.0, 1e6),
         )
         k = declare(
             self,
             'k',
             0,
-            f'rows of Y_i, the robot included (0: the policy default, {defaults["k"]})',
+            f'rows of Y_i, the robot included (0: the policy default, {default_k})',
             int_range=(0, 10_000),
         )
         rate = declare(
@@ -99,8 +99,8 @@ class MonitorNode(Node):
         self.watch = SwarmWatch(
             self.scenario,
             range(robots),
-            d_cr or defaults['d_cr'],
-            k or defaults['k'],
+            d_cr or default_d_cr,
+            k or default_k,
             stale_after=stale_after,
             lost_after=lost_after,
             trail=trail,
