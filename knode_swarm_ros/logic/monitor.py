@@ -91,7 +91,7 @@ class Throttle:
 
     def due(self, now: float) -> bool:
         """Whether a tick is due at ``now`` (then the next one is a period later)."""
-        if now - self.last < self.period:
+        if self.period == math.inf or now - self.last < self.period:
             return False
         self.last = now
         return True
