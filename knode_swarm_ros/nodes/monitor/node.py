@@ -1,7 +1,8 @@
 """The ``monitor`` node: a live view of a simulated or real swarm.
 
-Reads what the agents read, ``robot_<i>/odom`` of robots 0 .. n-1 (raw, as the recorder does),
-and the agents' health on ``/diagnostics``. Every tick (``rate`` per wall second) it builds a
+Reads what the agents read, ``robot_<i>/odom`` of robots 0 .. n-1 (raw, as the recorder does:
+only each robot's newest message is kept and decoded at the next tick), and the agents' health
+on ``/diagnostics``. Every tick (``rate`` per wall second) it builds a
 :class:`~knode_swarm_ros.logic.monitor.Snapshot` and publishes it as ``monitor/metrics``
 (std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), as RViz markers on
 ``monitor/markers`` (``marker_rate`` per second, only while someone listens: robots coloured by
@@ -105,6 +106,7 @@ class MonitorNode(Node):
             lost_after=lost_after,
             trail=trail,
         )
+        self.pending = {}  # robot -> (newest serialized Odometry, wall time it arrived)
         self.hello = None
         self.web = None
         if self.web_on:
@@ -130,13 +132,19 @@ class MonitorNode(Node):
         self.get_logger().info(f'watching {robots} robots ({self.scenario}){where}')
 
     def _on_odom(self, robot: int, data: bytes) -> None:
-        try:
-            stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
-        except CdrError:
-            return
-        if frame and parse_robot_frame(frame) != robot:
-            return
-        self.watch.receive(robot, stamp, z, time.monotonic())
+        # Only the newest message is kept; it is decoded at the next tick: the monitor's work
+        # follows its tick rate, not the swarm's publishing rate.
+        self.pending[robot] = (data, time.monotonic())
+
+    def _decode_pending(self) -> None:
+        pending, self.pending = self.pending, {}
+        for robot, (data, wall) in pending.items():
+            try:
+                stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
+            except CdrError:
+                continue
+            if not frame or parse_robot_frame(frame) == robot:
+                self.watch.receive(robot, stamp, z, wall)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -146,6 +154,7 @@ class MonitorNode(Node):
                 self.watch.diagnostics(robot, level[0] if isinstance(level, bytes) else int(level))
 
     def _on_tick(self) -> None:
+        self._decode_pending()
         now = time.monotonic()
         snap = self.watch.snapshot(now)
         if snap.step is None:
