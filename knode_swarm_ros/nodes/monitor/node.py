@@ -110,8 +110,12 @@ class MonitorNode(Node):
         self.hello = None
         self.web = None
         if self.web_on:
-            from .web import WebServer
+            from .web import WebServer, is_loopback
 
+            if not is_loopback(self.host):
+                self.get_logger().warning(
+                    f'the page binds {self.host}: other machines can reach it (no authentication)'
+                )
             self.web = WebServer(self.host, port)
             try:
                 self.web.start()
