@@ -47,8 +47,11 @@ setup(
     maintainer_email='maintainers@knode-swarm.dev',
     python_requires='>=3.10',
     packages=find_packages(exclude=['tests', 'tests.*', 'training', 'training.*', 'bench', 'bench.*']),
-    # Shipped, pretrained policies and scenario files: found at run time through importlib.resources.
-    package_data={PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx', 'scenarios/*.yaml']},
+    # Shipped, pretrained policies and scenario files (found at run time through importlib.resources)
+    # and the monitor's page.
+    package_data={
+        PACKAGE_NAME: ['policies/*.pt', 'policies/*.onnx', 'scenarios/*.yaml', 'nodes/monitor/page.html']
+    },
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),
@@ -71,6 +74,7 @@ setup(
             'simulator = knode_swarm_ros.nodes.simulator:main',
             'recorder = knode_swarm_ros.nodes.recorder:main',
             'swarm = knode_swarm_ros.nodes.swarm:main',
+            'monitor = knode_swarm_ros.nodes.monitor:main',
         ],
     },
 )

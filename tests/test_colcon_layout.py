@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 PACKAGE = 'knode_swarm_ros'
-EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'swarm')
+EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'swarm', 'monitor')
 REPO = Path(__file__).resolve().parents[1]
 
 # Tighten here once knode_swarm_ros/nodes/agent/node.py is the real node.

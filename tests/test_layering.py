@@ -165,7 +165,7 @@ def test_every_command_has_a_help(tmp_path):
 
 # -- nodes/: one folder per executable, nothing happens on import ------------------------------
 
-EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'lifecycle_manager', 'swarm')
+EXECUTABLES = ('agent', 'agents', 'simulator', 'recorder', 'lifecycle_manager', 'swarm', 'monitor')
 
 
 @pytest.mark.parametrize('name', EXECUTABLES)

@@ -16,7 +16,7 @@ import sys
 
 __all__ = ['quiet_until_running', 'started_as_program']
 
-_PROGRAMS = ('agent', 'agents', 'simulator', 'recorder')
+_PROGRAMS = ('agent', 'agents', 'simulator', 'recorder', 'monitor')
 
 
 def started_as_program() -> bool:

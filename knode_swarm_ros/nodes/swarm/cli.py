@@ -11,7 +11,7 @@ from knode_swarm_ros.nodes.agent.link import add_link_arguments
 
 from . import hosting, robot_model
 from .console import say as _say
-from .plan import DOMAIN_RANGE, plan_run
+from .plan import DOMAIN_RANGE, MONITOR_PORT, plan_run
 from .supervise import run
 
 __all__ = ['build_parser', 'main']
@@ -111,6 +111,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument('--keep-logs', action='store_true', help='keep the temporary log folder')
     p.add_argument('--quiet', action='store_true', help="do not echo the nodes' output")
+    p.add_argument(
+        '--monitor',
+        type=int,
+        nargs='?',
+        const=MONITOR_PORT,
+        metavar='PORT',
+        help=f'also start the live monitor: RViz markers and a web page on http://localhost:PORT/ '
+        f'(default port {MONITOR_PORT}; 0: any free one); never waited for, its death changes nothing',
+    )
+    p.add_argument(
+        '--monitor-host',
+        metavar='ADDRESS',
+        help="the address the monitor's page binds (default 127.0.0.1, this machine only; e.g. 0.0.0.0)",
+    )
     add_link_arguments(p)
     robot_model.add_arguments(p)
     p.add_argument(

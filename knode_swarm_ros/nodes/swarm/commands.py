@@ -34,7 +34,7 @@ def _write_params_file(path: Path, params: Dict) -> None:
 
 def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
     """``(commands, files)``: every process's command line by name (``simulator``,
-    ``recorder``, [``lifecycle_manager``,] ``agent_<i>`` or ``agents_<a>_<b>``) and the parameter
+    ``recorder``, [``monitor``,] [``lifecycle_manager``,] ``agent_<i>`` or ``agents_<a>_<b>``) and the parameter
     files those command lines name (path in ``plan.run_dir`` -> parameters). Pure."""
     gt = plan.ground_truth
     sim = {
@@ -75,6 +75,21 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
         'recorder': python
         + [f'{PACKAGE}.nodes.recorder', '--ros-args', '--params-file', str(plan.run_dir / 'recorder.yaml')],
     }
+    if plan.monitor_port is not None:  # reads what the agents read; nothing waits for it
+        files[plan.run_dir / 'monitor.yaml'] = {
+            'scenario': plan.scenario,
+            'robots': plan.robots,
+            'd_cr': float(plan.d_cr),
+            'k': int(plan.policy_meta.get('k') or 0),
+            'port': int(plan.monitor_port),
+            'host': plan.monitor_host,
+        }
+        out['monitor'] = python + [
+            f'{PACKAGE}.nodes.monitor',
+            '--ros-args',
+            '--params-file',
+            str(plan.run_dir / 'monitor.yaml'),
+        ]
     if not gt:
         agent = {
             'scenario': plan.scenario,

@@ -19,7 +19,16 @@ from knode_swarm_ros.nodes.agent.link import link_parameters
 
 from . import hosting, robot_model
 
-__all__ = ['Plan', 'plan_run', 'available_memory_mb', 'DOMAIN_RANGE', 'MAX_ROBOTS', 'AGENT_MB', 'NODE_MB']
+__all__ = [
+    'Plan',
+    'plan_run',
+    'available_memory_mb',
+    'DOMAIN_RANGE',
+    'MAX_ROBOTS',
+    'AGENT_MB',
+    'NODE_MB',
+    'MONITOR_PORT',
+]
 
 DOMAIN_RANGE = (30, 101)  # valid ids with the default port mapping, away from the default 0
 #: The most robots any node accepts (the 'robots' parameter range of agent, simulator, recorder).
@@ -27,6 +36,8 @@ MAX_ROBOTS = 10_000
 #: Private memory of one process, measured with the CPU build of torch (docs/DESIGN.md):
 #: an agent about 330 MB; the simulator and the recorder (numpy, no torch) far less.
 AGENT_MB, NODE_MB = 330, 150
+#: The monitor's web page port when ``--monitor`` names none.
+MONITOR_PORT = 8765
 
 
 @dataclass(frozen=True)
@@ -70,6 +81,8 @@ class Plan:
     quiet: bool = False
     on_agent_exit: str = 'continue'
     keep_logs: bool = False
+    monitor_port: Optional[int] = None  # None: no monitor; 0: any free port
+    monitor_host: str = '127.0.0.1'
 
 
 def _check_output_folder(option: str, given: str, folder: Path) -> None:
@@ -122,6 +135,11 @@ def _check_numbers(args: argparse.Namespace) -> None:
             raise ConfigError(f'--{name.replace("_", "-")} must be > 0, got {value}')
     if args.timeout < 0:
         raise ConfigError(f'--timeout must be >= 0, got {args.timeout}')
+    monitor = getattr(args, 'monitor', None)
+    if monitor is not None and not 0 <= monitor <= 65535:
+        raise ConfigError(f'--monitor PORT must be in 0..65535, got {monitor}')
+    if getattr(args, 'monitor_host', None) and monitor is None:
+        raise ConfigError('--monitor-host needs --monitor')
 
 
 def _policy(args: argparse.Namespace):
@@ -288,4 +306,6 @@ def plan_run(args: argparse.Namespace) -> Plan:
         quiet=bool(args.quiet),
         on_agent_exit=args.on_agent_exit,
         keep_logs=bool(args.keep_logs),
+        monitor_port=getattr(args, 'monitor', None),
+        monitor_host=getattr(args, 'monitor_host', None) or '127.0.0.1',
     )

@@ -84,6 +84,7 @@ _STARTED = {
     'recorder': ': recording ',
     'agent': 'publishing ',
     'agents': ' hosted) of ',
+    'monitor': 'watching ',
 }
 
 

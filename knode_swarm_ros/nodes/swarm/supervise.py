@@ -22,7 +22,9 @@ from .processes import Children, Interrupted, start_child
 from .report import summarise
 from .shm import shm_cleanup, shm_snapshot
 
-__all__ = ['run']
+__all__ = ['run', 'MONITOR']
+
+MONITOR = 'monitor'  # the process that nothing waits for
 
 
 def run(plan: Plan) -> int:
@@ -83,6 +85,9 @@ def run(plan: Plan) -> int:
                     )
                     + ': waiting until every agent has heard every robot'
                 )
+                if MONITOR in pids:
+                    where = f'{plan.monitor_host}:{plan.monitor_port}' if plan.monitor_port else 'a free port'
+                    _say(f'monitor (pid {pids[MONITOR]}): web page on {where} (its log has the address)')
                 code = _supervise(plan, children, lost_agents, t0)
         except Interrupted:
             name = signal.Signals(stop_reason['signal']).name
@@ -148,7 +153,7 @@ def _start_in_stages(
             children.add(start_child(name, commands[name], env, plan.run_dir, echo))
         if stage is agents:
             break  # supervised with the rest of the run
-        waiting = [children.items[n] for n in stage]
+        waiting = [children.items[n] for n in stage if n != MONITOR]  # never waited for
         while any(not c.marked for c in waiting):
             children.pump(0.1)
             for c in waiting:
@@ -182,6 +187,9 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             rc = c.proc.returncode
             if c is rec and rc == 0:
                 continue  # saved after the simulator said done
+            if c.name == MONITOR:  # an observer: the run goes on as it would without it
+                _say(f'the monitor (pid {c.pid}) {c.how_it_ended()}: the run goes on without it')
+                continue
             if c.name == 'lifecycle_manager' and rc == 0:
                 _say('every agent configured, then activated together')
                 continue

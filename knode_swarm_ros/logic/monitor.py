@@ -1,0 +1,286 @@
+"""The live monitor's logic, without ROS: robot states in, one snapshot per tick out.
+
+:class:`SwarmWatch` keeps every robot's newest state (``z [d]``, its stamp and the wall time it
+arrived), its agent's newest health level and a short trail of positions. :meth:`SwarmWatch.snapshot`
+turns them into a :class:`Snapshot`: positions ``[n, p]``, directions ``[n, p]`` (velocities,
+flock2d; unit headings, boids3d), each robot's health, the neighbour links of the robots' Y_i
+(the core's ranking rule, :func:`knode_swarm_ros.core.network.neighbour_index`, on the newest
+states: the delay tau is not modelled) and the swarm metrics (avd and amd of
+:mod:`knode_swarm_ros.core.metrics`, the smallest nearest-neighbour distance, polarisation).
+
+Health of a robot: ``unheard`` (no state yet), ``lost`` (no state for ``lost_after`` wall seconds),
+``stale`` (none for ``stale_after``), else its agent's diagnostics level (``ok``, ``warn``,
+``error``; ``ok`` when its agent never reported).
+
+The web page's messages (JSON, one per tick, see :func:`hello_message` and :func:`tick_message`)
+carry the mapping world -> pixel explicitly: a fixed scale for the run (pixels per metre, in
+the first message) and the view's centre per tick (the swarm's centroid), so that
+``px = width / 2 + (x - cx) * scale`` and ``py = height / 2 - (y - cy) * scale``.
+:class:`Throttle` keeps the ticks to a rate that holds at hundreds of robots.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from knode_swarm_ros.core.metrics import amd, avd
+from knode_swarm_ros.core.network import neighbour_index
+from knode_swarm_ros.core.scenarios import get_scenario
+
+__all__ = [
+    'METRICS_TOPIC',
+    'MONITOR_MARKERS_TOPIC',
+    'HEALTH',
+    'HEALTH_CODES',
+    'NETWORK_DEFAULTS',
+    'Snapshot',
+    'SwarmWatch',
+    'Throttle',
+    'swarm_figures',
+    'view_scale',
+    'hello_message',
+    'tick_message',
+    'decode_tick',
+    'pixel_of',
+]
+
+METRICS_TOPIC = 'monitor/metrics'  # std_msgs/String, JSON: one message per tick
+MONITOR_MARKERS_TOPIC = 'monitor/markers'  # visualization_msgs/MarkerArray
+
+#: (d_cr, k) of the paper's policies per scenario, those of core.policy.DEFAULTS (a test checks
+#: it): the monitor must not import torch for two numbers.
+NETWORK_DEFAULTS = {'flock2d': (5.0, 6), 'boids3d': (2.0, 6)}
+
+#: Health names and their one-letter codes in the tick message.
+HEALTH = ('ok', 'warn', 'error', 'stale', 'lost', 'unheard')
+HEALTH_CODES = {'ok': 'o', 'warn': 'w', 'error': 'e', 'stale': 's', 'lost': 'l', 'unheard': 'u'}
+_LEVELS = {0: 'ok', 1: 'warn', 2: 'error'}  # diagnostic_msgs levels (3, STALE, counts as error)
+#: Positions and directions travel in millimetres (mm/s): integers keep the message short.
+MM = 1000.0
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The swarm at one tick. ``n`` robots, ``p`` position entries, ``L`` links."""
+
+    ids: List[int]
+    step: Optional[int]  # newest step heard (from the stamps), None before any state
+    stamp_ns: Optional[int]
+    lags: np.ndarray  # [n] int: steps each robot's state is behind ``step`` (0 for unheard robots)
+    positions: np.ndarray  # [n, p]; robots never heard at the origin (health 'unheard')
+    directions: np.ndarray  # [n, p]
+    health: List[str]  # [n], one of HEALTH
+    links: np.ndarray  # [L, 2] int, (i, j): robot ids[j] is in Y_i (indices into ids)
+    metrics: Dict[str, Optional[float]]  # avd, amd, nnd (smallest nearest-neighbour distance), polarisation
+    trails: List[np.ndarray]  # [n] arrays [m_i, p], oldest first
+    centre: Tuple[float, float]  # view centre (x, y): centroid of the heard robots
+
+
+class Throttle:
+    """At most ``rate`` ticks per second of a monotonic clock (0: never)."""
+
+    def __init__(self, rate: float):
+        self.period = 1.0 / rate if rate > 0 else math.inf
+        self.last = -math.inf
+
+    def due(self, now: float) -> bool:
+        """Whether a tick is due at ``now`` (then the next one is a period later)."""
+        if self.period == math.inf or now - self.last < self.period:
+            return False
+        self.last = now
+        return True
+
+
+class SwarmWatch:
+    """Newest state, health and trail of robots ``robot_ids`` (see the module doc)."""
+
+    def __init__(
+        self,
+        scenario: str,
+        robot_ids: Sequence[int],
+        d_cr: float,
+        k: int,
+        dt: Optional[float] = None,
+        stale_after: float = 1.0,
+        lost_after: float = 5.0,
+        trail: int = 50,
+        trail_every: float = 0.2,
+    ):
+        self.spec = get_scenario(scenario)
+        self.ids = [int(i) for i in robot_ids]
+        self.index = {r: n for n, r in enumerate(self.ids)}
+        n, d = len(self.ids), self.spec.state_dim
+        self.d_cr, self.k = float(d_cr), int(k)
+        self.dt = float(dt or self.spec.dt)
+        self.stale_after, self.lost_after = float(stale_after), float(lost_after)
+        self.trail_every = float(trail_every)
+        self.states = np.zeros((n, d))
+        self.stamps = np.full(n, -1, dtype=np.int64)
+        self.arrived = np.full(n, -math.inf)  # wall seconds
+        self.levels: List[Optional[int]] = [None] * n
+        self.trails = [deque(maxlen=max(1, int(trail))) for _ in range(n)]
+        self.trail_wall = np.full(n, -math.inf)
+
+    def receive(self, robot: int, stamp_ns: int, z: np.ndarray, wall: float) -> bool:
+        """File a state of ``robot``; older than the newest one or unknown robot: ignored (False)."""
+        i = self.index.get(int(robot))
+        if i is None or stamp_ns < self.stamps[i] or not np.all(np.isfinite(z)):
+            return False
+        self.states[i] = z
+        self.stamps[i] = stamp_ns
+        self.arrived[i] = wall
+        if wall - self.trail_wall[i] >= self.trail_every:
+            self.trail_wall[i] = wall
+            self.trails[i].append(np.array(z[: self.spec.position_dim], dtype=float))
+        return True
+
+    def diagnostics(self, robot: int, level: int) -> None:
+        """The newest diagnostics level of ``robot``'s agent (0 OK, 1 WARN, 2 ERROR, 3 STALE)."""
+        i = self.index.get(int(robot))
+        if i is not None:
+            self.levels[i] = int(level)
+
+    def health(self, wall: float) -> List[str]:
+        """Health of every robot at wall time ``wall`` (see the module doc)."""
+        out = []
+        for i, level in enumerate(self.levels):
+            age = wall - self.arrived[i]
+            if self.stamps[i] < 0:
+                out.append('unheard')
+            elif age > self.lost_after:
+                out.append('lost')
+            elif age > self.stale_after:
+                out.append('stale')
+            else:
+                out.append(_LEVELS.get(level, 'error') if level is not None else 'ok')
+        return out
+
+    def snapshot(self, wall: float) -> Snapshot:
+        """The swarm now (see :class:`Snapshot`)."""
+        p = self.spec.position_dim
+        heard = self.stamps >= 0
+        pos, direction = self.states[:, :p].copy(), self.states[:, p:].copy()
+        links = np.zeros((0, 2), dtype=np.int64)
+        if heard.sum() >= 2 and self.k > 1:
+            rows = np.nonzero(heard)[0]
+            index, valid = neighbour_index(self.states[rows], p, self.d_cr, self.k)
+            i = np.repeat(np.arange(len(rows)), index.shape[1])[valid.ravel()]
+            links = np.stack([rows[i], rows[index.ravel()[valid.ravel()]]], axis=1)
+        stamp = int(self.stamps.max()) if heard.any() else None
+        steps = np.rint(self.stamps / (self.dt * 1e9)).astype(np.int64)
+        lags = np.where(heard, steps.max() - steps, 0) if heard.any() else np.zeros(len(self.ids), np.int64)
+        centre = tuple(float(c) for c in pos[heard, :2].mean(axis=0)) if heard.any() else (0.0, 0.0)
+        return Snapshot(
+            ids=list(self.ids),
+            step=int(round(stamp / (self.dt * 1e9))) if stamp is not None else None,
+            stamp_ns=stamp,
+            lags=lags,
+            positions=pos,
+            directions=direction,
+            health=self.health(wall),
+            links=links,
+            metrics=swarm_figures(self.states[heard], p),
+            trails=[np.array(t).reshape(-1, p) for t in self.trails],
+            centre=centre,
+        )
+
+
+def swarm_figures(frame: np.ndarray, p: int) -> Dict[str, Optional[float]]:
+    """avd, amd, nnd (smallest nearest-neighbour distance) and polarisation (norm of the mean
+    unit direction: 1 when every robot heads the same way) of ``frame [n, d]``; None below 2 robots."""
+    if frame.shape[0] < 2:
+        return {'avd': None, 'amd': None, 'nnd': None, 'polarisation': None}
+    pos, direction = frame[:, :p], frame[:, p:]
+    gaps = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+    np.fill_diagonal(gaps, np.inf)
+    norms = np.linalg.norm(direction, axis=-1, keepdims=True)
+    units = np.divide(direction, norms, out=np.zeros_like(direction), where=norms > 0)
+    return {
+        'avd': float(avd(direction)),
+        'amd': float(amd(pos)),
+        'nnd': float(gaps.min()),
+        'polarisation': float(np.linalg.norm(units.mean(axis=0))),
+    }
+
+
+def view_scale(positions: np.ndarray, width: int, height: int, d_cr: float) -> float:
+    """Pixels per metre of a run's view: the first snapshot's swarm (x, y extent, at least
+    ``4 d_cr`` or 10 m across) fills a third of the smaller side of the canvas, leaving room
+    for the swarm to spread. Fixed for the run."""
+    pos = np.asarray(positions)[:, :2]
+    extent = float(np.ptp(pos, axis=0).max()) if len(pos) else 0.0
+    span = max(extent, 4.0 * d_cr, 10.0) * 3.0
+    return min(width, height) / span
+
+
+def pixel_of(x: float, y: float, centre: Sequence[float], scale: float, width: int, height: int):
+    """Canvas pixel (column, row) of world point (x, y) (see the module doc)."""
+    return width / 2.0 + (x - centre[0]) * scale, height / 2.0 - (y - centre[1]) * scale
+
+
+def hello_message(scenario: str, ids: Sequence[int], d_cr: float, k: int, scale: float, size) -> str:
+    """The first message of a WebSocket: the run and the view (pixels per metre, canvas size)."""
+    return json.dumps(
+        {
+            'type': 'hello',
+            'scenario': scenario,
+            'ids': list(map(int, ids)),
+            'd_cr': float(d_cr),
+            'k': int(k),
+            'position_dim': get_scenario(scenario).position_dim,
+            'scale': float(scale),
+            'width': int(size[0]),
+            'height': int(size[1]),
+            'health': {code: name for name, code in HEALTH_CODES.items()},
+        },
+        separators=(',', ':'),
+    )
+
+
+def _mm(values: np.ndarray) -> List[int]:
+    return np.rint(np.asarray(values, dtype=float).ravel() * MM).astype(np.int64).tolist()
+
+
+def tick_message(snap: Snapshot) -> str:
+    """One tick as compact JSON: ``step``, ``a`` (steps each robot's state is behind ``step``),
+    ``c`` (view centre, m), ``p`` / ``v`` (positions in mm and directions in mm/s, flattened
+    ``[n * p]``), ``h`` (health, one letter per robot), ``l``
+    (links, flattened index pairs), ``m`` (metrics; null below 2 robots). Trails are the
+    page's own (it keeps the positions it received)."""
+    return json.dumps(
+        {
+            'type': 'tick',
+            'step': snap.step,
+            'a': snap.lags.tolist(),
+            'c': [round(snap.centre[0], 3), round(snap.centre[1], 3)],
+            'p': _mm(snap.positions),
+            'v': _mm(snap.directions),
+            'h': ''.join(HEALTH_CODES[h] for h in snap.health),
+            'l': snap.links.ravel().tolist(),
+            'm': {k: (round(v, 4) if v is not None else None) for k, v in snap.metrics.items()},
+        },
+        separators=(',', ':'),
+    )
+
+
+def decode_tick(text: str, position_dim: int) -> Dict:
+    """A tick message back as arrays: ``positions [n, p]`` and ``directions [n, p]`` in metres,
+    ``links [L, 2]``, ``health`` names, ``centre``, ``step``, ``lags [n]``, ``metrics``."""
+    msg = json.loads(text)
+    names = {code: name for name, code in HEALTH_CODES.items()}
+    return {
+        'step': msg['step'],
+        'lags': np.asarray(msg['a'], dtype=np.int64),
+        'centre': tuple(msg['c']),
+        'positions': np.asarray(msg['p'], dtype=float).reshape(-1, position_dim) / MM,
+        'directions': np.asarray(msg['v'], dtype=float).reshape(-1, position_dim) / MM,
+        'health': [names[c] for c in msg['h']],
+        'links': np.asarray(msg['l'], dtype=np.int64).reshape(-1, 2),
+        'metrics': msg['m'],
+    }

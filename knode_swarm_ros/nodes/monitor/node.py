@@ -1,0 +1,196 @@
+"""The ``monitor`` node: a live view of a simulated or real swarm.
+
+Reads what the agents read, ``robot_<i>/odom`` of robots 0 .. n-1 (raw, as the recorder does:
+only each robot's newest message is kept and decoded at the next tick), and the agents' health
+on ``/diagnostics``. Every tick (``rate`` per wall second) it builds a
+:class:`~knode_swarm_ros.logic.monitor.Snapshot` and publishes it as ``monitor/metrics``
+(std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), as RViz markers on
+``monitor/markers`` (``marker_rate`` per second, only while someone listens: robots coloured by
+health, headings, the Y_i links, trails) and to the web page (``http://host:port/``, unless
+``web`` is false). It publishes nothing the swarm reads: it can stop at any time.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from functools import partial
+
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+from knode_swarm_ros.core.scenarios import get_scenario
+from knode_swarm_ros.logic.common import ConfigError, odom_topic, parse_robot_frame, status_json
+from knode_swarm_ros.logic.monitor import (
+    METRICS_TOPIC,
+    MONITOR_MARKERS_TOPIC,
+    NETWORK_DEFAULTS,
+    SwarmWatch,
+    Throttle,
+    hello_message,
+    tick_message,
+    view_scale,
+)
+from knode_swarm_ros.nodes.common import qos
+from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES, CdrError, odom_from_cdr
+from knode_swarm_ros.nodes.common.executor import run_node
+from knode_swarm_ros.nodes.common.markers import swarm_markers
+from knode_swarm_ros.nodes.common.params import check_overrides, declare
+
+__all__ = ['MonitorNode', 'main']
+
+CANVAS = (960, 720)  # the page's canvas in pixels (sent in the hello message)
+
+
+class MonitorNode(Node):
+    """Thin ROS wrapper around :class:`SwarmWatch` and the web server (see the module doc)."""
+
+    def __init__(self, node_name: str = 'monitor', **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.scenario = declare(
+            self, 'scenario', 'flock2d', 'flock2d or boids3d', choices=('flock2d', 'boids3d')
+        )
+        robots = declare(self, 'robots', 10, 'number of robots, ids 0 .. robots-1', int_range=(1, 10_000))
+        default_d_cr, default_k = NETWORK_DEFAULTS[self.scenario]
+        d_cr = declare(
+            self,
+            'd_cr',
+            0.0,
+            f'communication radius of the links (0: the policy default, {default_d_cr:g})',
+            float_range=(0.0, 1e6),
+        )
+        k = declare(
+            self,
+            'k',
+            0,
+            f'rows of Y_i, the robot included (0: the policy default, {default_k})',
+            int_range=(0, 10_000),
+        )
+        rate = declare(
+            self, 'rate', 15.0, 'ticks (metrics, page updates) per wall second', float_range=(0.1, 100.0)
+        )
+        marker_rate = declare(
+            self, 'marker_rate', 5.0, 'RViz markers per wall second (0: none)', float_range=(0.0, 100.0)
+        )
+        stale_after = declare(
+            self, 'stale_after', 1.0, 'wall seconds without a state: stale', float_range=(1e-3, 3600.0)
+        )
+        lost_after = declare(
+            self, 'lost_after', 5.0, 'wall seconds without a state: lost', float_range=(1e-3, 3600.0)
+        )
+        trail = declare(self, 'trail', 50, 'points of each robot trail (RViz)', int_range=(1, 10_000))
+        self.web_on = declare(self, 'web', True, 'serve the live web page')
+        self.host = declare(self, 'host', '127.0.0.1', 'address the web page binds')
+        port = declare(self, 'port', 8765, 'port of the web page (0: any free one)', int_range=(0, 65535))
+        self.twist_frame = declare(
+            self,
+            'twist_frame',
+            'body',
+            'frame of the Odometry twist: body (REP 105) or world',
+            choices=TWIST_FRAMES,
+        )
+        check_overrides(self, sys.argv)
+        if lost_after < stale_after:
+            raise ConfigError(f"parameter 'lost_after' = {lost_after} is below 'stale_after' = {stale_after}")
+        self.spec = get_scenario(self.scenario)
+        self.watch = SwarmWatch(
+            self.scenario,
+            range(robots),
+            d_cr or default_d_cr,
+            k or default_k,
+            stale_after=stale_after,
+            lost_after=lost_after,
+            trail=trail,
+        )
+        self.pending = {}  # robot -> (newest serialized Odometry, wall time it arrived)
+        self.hello = None
+        self.web = None
+        if self.web_on:
+            from .web import WebServer, is_loopback
+
+            if not is_loopback(self.host):
+                self.get_logger().warning(
+                    f'the page binds {self.host}: other machines can reach it (no authentication)'
+                )
+            self.web = WebServer(self.host, port)
+            try:
+                self.web.start()
+            except OSError as exc:
+                raise ConfigError(
+                    f"parameters 'host' / 'port': cannot serve on {self.host}:{port}: {exc}"
+                ) from None
+        self.marker_throttle = Throttle(marker_rate)
+        self.metrics_pub = self.create_publisher(String, METRICS_TOPIC, qos.STATUS)
+        self.markers_pub = self.create_publisher(MarkerArray, MONITOR_MARKERS_TOPIC, qos.MARKERS)
+        self.subs = [
+            self.create_subscription(Odometry, odom_topic(r), partial(self._on_odom, r), qos.ODOM, raw=True)
+            for r in range(robots)
+        ]
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, qos.DIAGNOSTICS)
+        self.create_timer(1.0 / rate, self._on_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        where = f'; page at http://{self.host}:{self.web.port}/' if self.web else ''
+        self.get_logger().info(f'watching {robots} robots ({self.scenario}){where}')
+
+    def _on_odom(self, robot: int, data: bytes) -> None:
+        # Only the newest message is kept; it is decoded at the next tick: the monitor's work
+        # follows its tick rate, not the swarm's publishing rate.
+        self.pending[robot] = (data, time.monotonic())
+
+    def _decode_pending(self) -> None:
+        pending, self.pending = self.pending, {}
+        for robot, (data, wall) in pending.items():
+            try:
+                stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
+            except CdrError:
+                continue
+            if not frame or parse_robot_frame(frame) == robot:
+                self.watch.receive(robot, stamp, z, wall)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            robot = parse_robot_frame(status.hardware_id)
+            if robot is not None:
+                level = status.level
+                self.watch.diagnostics(robot, level[0] if isinstance(level, bytes) else int(level))
+
+    def _on_tick(self) -> None:
+        self._decode_pending()
+        now = time.monotonic()
+        snap = self.watch.snapshot(now)
+        if snap.step is None:
+            return
+        counts = {h: snap.health.count(h) for h in set(snap.health)}
+        self.metrics_pub.publish(String(data=status_json(step=snap.step, robots=counts, **snap.metrics)))
+        if self.marker_throttle.due(now) and self.markers_pub.get_subscription_count() > 0:
+            self.markers_pub.publish(
+                swarm_markers(
+                    self.watch.states,
+                    self.spec,
+                    self.watch.d_cr,
+                    snap.stamp_ns,
+                    links=snap.links,
+                    health=snap.health,
+                    trails=snap.trails,
+                )
+            )
+        if self.web is not None:
+            if self.hello is None:  # the scale is fixed on the first states heard
+                heard = [i for i, h in enumerate(snap.health) if h != 'unheard']
+                scale = view_scale(snap.positions[heard], *CANVAS, self.watch.d_cr)
+                self.hello = hello_message(
+                    self.scenario, snap.ids, self.watch.d_cr, self.watch.k, scale, CANVAS
+                )
+            self.web.publish(self.hello, tick_message(snap))
+
+    def close(self) -> None:
+        if self.web is not None:
+            self.web.stop()
+
+
+def main(args=None):
+    """Entry point of the ``monitor`` executable."""
+    run_node('monitor', MonitorNode, MonitorNode.close, args)
