@@ -40,6 +40,7 @@ from training.learning.sweep import (
     Cell,
     axis_product,
     cell_name,
+    check_files,
     finished_cell,
     parse_axis,
     run_cells,
@@ -70,6 +71,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     axes = [parse_axis(a) for a in args.axis]
     base = parse_set(args.set)
+    check_files('--data', args.data)
     # cluster workers do not share this directory: every path absolute
     data = [os.path.abspath(p) for p in args.data]
     data = data[0] if len(data) == 1 else data

@@ -91,6 +91,13 @@ def cell_name(values: Dict[str, Any]) -> str:
 # -- one training run per cell ---------------------------------------------------------------------
 
 
+def check_files(option: str, paths: Sequence[str]) -> None:
+    """Refuse a missing input file before any cell runs (each would fail twice, quietly)."""
+    for path in paths:
+        if not os.path.isfile(path):
+            raise ConfigError(f'{option} {path}: no such file')
+
+
 def _plain(obj: Any) -> Any:
     """``obj`` as JSON reads it back (tuples become lists), so configs compare with stored ones."""
     return json.loads(json.dumps(obj))
