@@ -59,12 +59,14 @@ setup(
     + _config_data_files(),
     install_requires=['numpy', 'pyyaml'],
     # bag: reading and writing bags (knode_swarm_ros.bag: rosbags is pure Python, no ROS needed);
-    # robot: the torch-free runtime (onnxruntime); torch: the TorchScript runtime and training.
+    # robot: the torch-free runtime (onnxruntime); torch: the TorchScript runtime and training;
+    # sweep: training.sweep's cells on a local Ray or a cluster (one worker needs no Ray).
     extras_require={
         'test': ['pytest'],
         'bag': ['rosbags==0.11.9'],
         'robot': ['onnxruntime==1.32.0'],
         'torch': ['torch==2.13.0'],
+        'sweep': ['ray==2.60.0'],
     },
     zip_safe=False,
     entry_points={

@@ -40,6 +40,7 @@ CASES = [
     ('train', '--config {config} --data {tmp}/missing.npz --out {tmp}/out', 'missing.npz'),
     ('grid', '--config {tmp}/missing.yaml --data {tmp}/missing.npz --out {tmp}/out', 'missing.yaml'),
     ('grid', '--config {config} --data {tmp}/missing.npz --out {tmp}/out --set nonsense', 'nonsense'),
+    ('sweep', '--config {config} --data {tmp}/missing.npz --out {tmp}/out --axis policy.k', 'policy.k'),
     ('evaluate', '--policy {tmp}/missing.pt --data {tmp}/missing.npz --out {tmp}/out', 'missing.pt'),
     (
         'rollout',

@@ -7,8 +7,11 @@
 
 Parallel-safe and resumable: every cell trains in its own directory ``OUT/dcr<d>_k<k>/``,
 claimed with an exclusive lock file; a finished cell (``cell.json``) is skipped, an
-interrupted one resumes from its checkpoint (run the same command again, or several copies
-of it at once to use several cores). ``--collect`` only gathers finished cells; a finished cell
+interrupted one resumes from its checkpoint (run the same command again). ``--workers N`` runs N
+cells at a time on a local Ray (``--address``: a Ray cluster), as ``training.sweep`` does
+(training/learning/sweep.py: a failed cell retried once, progress in ``OUT/sweep.log``, every
+cell's status in ``OUT/sweep.json``); several copies of the command at once also share the cells.
+``--collect`` only gathers finished cells; a finished cell
 evaluated with other ``--trajectories``/``--rollouts``/``--perturb`` is evaluated again without
 training. Writes ``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``summary.md``
 under ``--out`` (boids3d: amd, POD-KLD, share of boids leaving the cube, share of rollouts with
@@ -18,6 +21,7 @@ an escape, subswarms).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -28,10 +32,11 @@ import torch
 
 from knode_swarm_ros.core import get_scenario, load_policy
 from knode_swarm_ros.core.cli import cli, parse_set
-from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.errors import EXIT_RUN_FAILED, KnodeError
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_policy
 from training.learning.config import load_config
 from training.learning.records import write_json
+from training.learning.sweep import Cell, check_files, run_cells
 from training.learning.trainer import DivergenceError, Trainer
 
 from .assessment import figures
@@ -258,6 +263,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         '--steps', type=int, default=None, help='evaluation steps (default: test trajectory length)'
     )
     parser.add_argument('--collect', action='store_true', help='only gather finished cells')
+    parser.add_argument(
+        '--workers', type=int, default=1, help='cells at a time (default 1: in this process; more: Ray)'
+    )
+    parser.add_argument(
+        '--address', default=None, help='a Ray cluster (ray://host:10001) instead of a local Ray'
+    )
     args = parser.parse_args(argv)
     for name in ('trajectories', 'rollouts', 'steps'):
         if getattr(args, name) is not None and getattr(args, name) < 1:
@@ -267,21 +278,41 @@ def main(argv: Optional[List[str]] = None) -> int:
     base = parse_set(args.set)
     cfg0 = load_config(args.config, base)
     torch.set_num_threads(cfg0['training']['threads'])
+    failed = []
     if not args.collect:
+        check_files('--data', [args.data])
+        # Ray's workers may start elsewhere (a cluster): absolute paths for them
+        ray = args.workers > 1 or args.address
+        data, out = (os.path.abspath(args.data), os.path.abspath(args.out)) if ray else (args.data, args.out)
+        cells = []
         for d in args.d_cr:
             for k in args.k:
                 cfg = load_config(args.config, {**base, 'policy.d_cr': d, 'policy.k': k})
-                run_cell(
+                run_dir = os.path.join(out, cell_name(d, k))
+                job = functools.partial(
+                    run_cell,
                     cfg,
-                    args.data,
-                    os.path.join(args.out, cell_name(d, k)),
+                    data,
+                    run_dir,
                     args.trajectories,
                     rollouts=args.rollouts,
                     perturb=args.perturb,
                     steps=args.steps,
                 )
+                cells.append(Cell(cell_name(d, k), {'policy.d_cr': d, 'policy.k': k}, run_dir, job))
+        header = {
+            'config': args.config,
+            'data': args.data,
+            'set': base,
+            'axes': {'policy.d_cr': args.d_cr, 'policy.k': args.k},
+        }
+        records = run_cells(cells, args.out, args.workers, args.address, header=header)
+        failed = [r['name'] for r in records if r['status'] == 'failed']
     results = collect(args.out, cfg0['scenario'], args.d_cr, args.k)
     print(f'{len(results["finished"])} cells finished; wrote {args.out}/results.json and heat maps')
+    if failed:
+        print(f'failed twice: {", ".join(failed)} (see {args.out}/sweep.json)', file=sys.stderr)
+        return EXIT_RUN_FAILED
     return 0
 
 
