@@ -39,6 +39,7 @@ def _train(argv, capsys=None):
 
 
 QUICK = ['--set', 'training.epochs=1', '--set', 'training.batch_size=512']
+VAL1 = ['--set', 'data.val_trajectories=1']  # tests of other points keep to what always worked
 
 
 # 2 ----------------------------------------------------------------------------------------------
@@ -112,12 +113,21 @@ def test_a_log_file_gets_epoch_lines_not_carriage_returns(tmp_path):
     data = _data(tmp_path, 3, 3)
     log = tmp_path / 'train.log'
     cmd = [sys.executable, '-m', 'training.train', '--config', CONFIG, '--data', data]
-    cmd += ['--out', str(tmp_path / 'run'), '--set', 'training.epochs=2', '--set', 'training.batch_size=64']
+    cmd += [
+        '--out',
+        str(tmp_path / 'run'),
+        '--set',
+        'training.epochs=2',
+        '--set',
+        'training.batch_size=64',
+        *VAL1,
+    ]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with open(log, 'w') as fh:  # progress on (the default), output a file
         assert subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=ROOT).returncode == 0
-    text = log.read_text()
-    assert '\r' not in text, text[:300]
+    text = log.read_bytes().decode()  # read_text would turn carriage returns into newlines
+    assert '\r' not in text, repr(text[:300])
+    assert len([line for line in text.splitlines() if line.startswith('epoch 1/2')]) == 1, text[:600]
     assert 'epoch 1/2 train' in text and 'epoch 2/2 train' in text
 
 
@@ -134,26 +144,28 @@ def test_progress_lines_within_a_long_epoch_off_a_terminal(tmp_path, monkeypatch
 
 def test_training_into_an_existing_run_is_refused_unless_resume_or_overwrite(tmp_path, capsys):
     data, run = _data(tmp_path, 3, 3), str(tmp_path / 'run')
-    assert _train(['--data', data, '--out', run, *QUICK]) == 0
+    assert _train(['--data', data, '--out', run, *QUICK, *VAL1]) == 0
     policy = (tmp_path / 'run' / 'policy.pt').read_bytes()
     capsys.readouterr()
-    assert _train(['--data', data, '--out', run, *QUICK, '--set', 'seed=5']) == 2
+    assert _train(['--data', data, '--out', run, *QUICK, *VAL1, '--set', 'seed=5']) == 2
     err = capsys.readouterr().err
     assert 'already holds a run' in err and '--resume' in err and '--overwrite' in err
     assert (tmp_path / 'run' / 'policy.pt').read_bytes() == policy
-    assert _train(['--data', data, '--out', run, *QUICK, '--set', 'seed=5', '--overwrite']) == 0
+    assert _train(['--data', data, '--out', run, *QUICK, *VAL1, '--set', 'seed=5', '--overwrite']) == 0
     assert (tmp_path / 'run' / 'policy.pt').read_bytes() != policy
 
 
 def test_resume_extends_a_finished_run_and_names_a_differing_field(tmp_path, capsys):
     data, run = _data(tmp_path, 3, 3), str(tmp_path / 'run')
-    assert _train(['--data', data, '--out', run, *QUICK]) == 0
+    assert _train(['--data', data, '--out', run, *QUICK, *VAL1]) == 0
     capsys.readouterr()
     extend = ['--set', 'training.epochs=2', '--set', 'training.batch_size=512']
-    assert _train(['--data', data, '--out', run, *extend, '--resume']) == 0, capsys.readouterr().err
+    assert _train(['--data', data, '--out', run, *extend, *VAL1, '--resume']) == 0, capsys.readouterr().err
     assert 'training.epochs 1 -> 2' in capsys.readouterr().out
     assert json.loads((tmp_path / 'run' / 'summary.json').read_text())['epochs'] == 2
-    assert _train(['--data', data, '--out', run, *extend, '--set', 'training.lr=0.01', '--resume']) == 2
+    assert (
+        _train(['--data', data, '--out', run, *extend, *VAL1, '--set', 'training.lr=0.01', '--resume']) == 2
+    )
     err = capsys.readouterr().err
     assert '(training.lr: ' in err and ' in the checkpoint, 0.01 now)' in err
 
@@ -169,7 +181,7 @@ def test_ctrl_c_says_the_checkpoint_is_kept_and_how_to_resume(tmp_path, capsys, 
 
     monkeypatch.setattr(train, 'Trainer', StoppedAfterOneEpoch)
     data, run = _data(tmp_path, 3, 3), str(tmp_path / 'run')
-    assert _train(['--data', data, '--out', run, '--set', 'training.epochs=3']) == 130
+    assert _train(['--data', data, '--out', run, '--set', 'training.epochs=3', *VAL1]) == 130
     err = capsys.readouterr().err
     assert 'interrupted: checkpoint after epoch 1 kept at' in err and '--resume' in err
 

@@ -210,7 +210,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(
                 f'warning: trajectories {close} start with a pair closer than {CLOSE_START}, where dt = 0.01 '
                 f'under-resolves the repulsion (max speed per trajectory {speeds}; a clean run stays below '
-                f'~10); --min-separation 0.15 avoids this',
+                f"~10); --min-separation 0.15 avoids this for data of your own (the paper's datasets "
+                "keep such starts, as README.md's 'Ground truth' explains)",
                 file=sys.stderr,
             )
     try:
