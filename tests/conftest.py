@@ -74,6 +74,8 @@ TORCHSCRIPT_DEPRECATED = (
     'torch.jit.script_method',
     'torch.jit.trace',
     'torch.jit.interface',
+    'torch.jit.load',
+    'torch.jit.save',
 )
 
 

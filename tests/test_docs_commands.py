@@ -14,7 +14,9 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMAND = re.compile(r'python3? -m (training(?:\.[a-z0-9_]+)+)')
+COMMAND = re.compile(
+    r'python3? -m (training(?:\.[a-z0-9_]+)+)(?![.\w<])'
+)  # not a pattern: training.studies.<name>
 
 
 def documented_commands():
