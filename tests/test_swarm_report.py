@@ -36,7 +36,7 @@ def test_follow_is_the_tanner_swarm_from_that_start_at_the_given_period():
     swarm = TannerSwarm(z[0][None], 'paper', dt=0.015)
     np.testing.assert_array_equal(follow('flock2d', z[0], 2, 0.015)[1], swarm.step()[0])
     for bad in (
-        lambda: follow('boids3d', np.zeros((3, 6)), 5, 0.1),
+        lambda: follow('boids3d', np.zeros((3, 6)), 5, 0.025),  # not a whole multiple of 1/60 s
         lambda: follow('flock2d', np.zeros((3, 3)), 5, 0.1),
         lambda: follow('flock2d', np.full((3, 4), np.nan), 5, 0.01),
     ):
@@ -75,3 +75,13 @@ def test_summary_and_figure_put_the_ground_truth_beside_the_learnt_swarm(tmp_pat
     plan2 = _plan(tmp_path, plan.record, figure=tmp_path / 'gt.png', ground_truth=True)
     assert 'ground_truth' not in summarise(plan2)
     assert mpimg.imread(plan2.figure).shape[1] == 1500
+
+
+def test_follow_boids3d_is_the_boids_swarm_at_spawn_speed():
+    """The boids3d figure and summary get their ground truth too (the boids from the same start)."""
+    from knode_swarm_ros.core.groundtruth import BoidsSwarm
+
+    z = simulate('boids3d', 1, 6, 8, seed=3, progress=False)[0]
+    swarm = BoidsSwarm.from_observation(z[0][None])
+    np.testing.assert_array_equal(follow('boids3d', z[0], 3, 1 / 60)[1], swarm.step()[0])
+    assert follow('boids3d', z[0], 3, 2 / 60).shape == (3, 6, 6)

@@ -1,6 +1,6 @@
 """End-to-end demo (until the ROS swarm lands): ground truth, shipped policy, metrics, figures.
 
-    python -m training.demo [--trajectories 5] [--steps 2000] [--out out/demo]
+    python -m training.demo [--trajectories 5] [--steps 2000] [--out out/demo-offline]
 
 Simulates a small flock2d dataset with the ground-truth module (Tanner flocking, paper
 initial conditions, 10 robots), rolls the shipped flock2d policy out from the same initial
@@ -34,7 +34,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--steps', type=int, default=2000, help='frames per swarm (default 2000 = 20 s)')
     parser.add_argument('--seed', type=int, default=2024, help='seed of the initial conditions')
     parser.add_argument('--policy', default=None, help='policy file (default: the shipped flock2d policy)')
-    parser.add_argument('--out', default=os.path.join('out', 'demo'))
+    parser.add_argument(
+        '--out',
+        default=os.path.join('out', 'demo-offline'),
+        help='output folder (default out/demo-offline; make demo, the ROS swarm, writes out/demo)',
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     t0 = time.perf_counter()

@@ -37,7 +37,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument(
         '--data',
         default=None,
-        help='trajectory file with a test split (ground truth); without it only --scaling runs',
+        help='trajectory file (ground truth): its test split, or all its trajectories when it has none '
+        '(said in the log and summary.md); without --data only --scaling runs',
     )
     parser.add_argument('--out', required=True, help='output directory')
     parser.add_argument(

@@ -80,7 +80,6 @@ def build_parser() -> argparse.ArgumentParser:
         prog='python -m training.generate',
         description="Simulate a ground-truth swarm (flock2d: Tanner flocking, boids3d: Lague's boids) and "
         'write a trajectory file with its train/test split in meta.',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument('--scenario', required=True, choices=sorted(PAPER_DEFAULTS), help='which ground truth')
     p.add_argument('--out', required=True, help='output .npz trajectory file (written atomically)')
@@ -98,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
         help='recorded frames T per trajectory (default: flock2d 2000, boids3d 1700; boids3d '
         'discards 10 frames before the first recorded one)',
     )
-    p.add_argument('--seed', type=_non_negative_int, default=0, help='numpy default_rng seed')
+    p.add_argument('--seed', type=_non_negative_int, default=0, help='numpy default_rng seed (default 0)')
     p.add_argument(
         '--variant',
         choices=presets('flock2d'),
@@ -211,7 +210,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(
                 f'warning: trajectories {close} start with a pair closer than {CLOSE_START}, where dt = 0.01 '
                 f'under-resolves the repulsion (max speed per trajectory {speeds}; a clean run stays below '
-                f'~10); --min-separation 0.15 avoids this',
+                f"~10); --min-separation 0.15 avoids this for data of your own (the paper's datasets "
+                "keep such starts, as README.md's 'Ground truth' explains)",
                 file=sys.stderr,
             )
     try:

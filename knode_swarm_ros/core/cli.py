@@ -14,6 +14,7 @@ input, an unparsable number), 130 for Ctrl-C. Anything else is a bug and keeps i
 """
 
 import functools
+import math
 import sys
 from typing import Any, Callable, Dict, Iterable, Optional
 
@@ -56,7 +57,8 @@ def cli(prog: str) -> Callable[[Callable[..., Optional[int]]], Callable[..., int
 
 def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
     """``["training.epochs=10", ...]`` (repeated ``--set SECTION.KEY=VALUE``) -> ``{"training.epochs": 10}``,
-    each value parsed as YAML (``10`` an int, ``[1, 2]`` a list, ``adjoint`` a string).
+    each value parsed as YAML (``10`` an int, ``[1, 2]`` a list, ``adjoint`` a string; ``1e-4`` a
+    float, which YAML alone would read as a string).
 
     Raises:
         ConfigError: an item without ``=``, or a value that is not valid YAML.
@@ -69,7 +71,21 @@ def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
         if not sep or not key.strip():
             raise ConfigError(f'--set {item!r}: expected SECTION.KEY=VALUE')
         try:
-            out[key.strip()] = yaml.safe_load(value)
+            parsed = yaml.safe_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f'--set {item!r}: the value is not valid YAML ({exc})') from None
+        out[key.strip()] = _number(parsed)
     return out
+
+
+def _number(value: Any) -> Any:
+    """YAML 1.1 reads ``1e-4`` (no dot) as text; a string that Python reads as a finite number is
+    one (``inf``, ``nan`` and words stay text)."""
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            return value
+        if math.isfinite(number) and any(c.isdigit() for c in value):
+            return number
+    return value

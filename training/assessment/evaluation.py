@@ -76,7 +76,15 @@ def evaluate(
         return scaling_only(policy, policy_path, out, sizes, ics, scaling_steps, seed, preset, log)
     spec = get_scenario(policy.scenario)
     data = load_trajectories(data_path, scenario=policy.scenario)
-    test = data.split('test')[:trajectories]
+    test, used = data.split('test')[:trajectories], 'test'
+    if len(test) == 0:  # e.g. one imported bag: evaluate on what there is, and say so
+        test, used = np.arange(data.states.shape[0])[:trajectories], 'all (no test split)'
+        log(
+            f'{data_path} has no test split (meta.split.test is empty): evaluating on its '
+            f'{len(test)} trajectories, which training may have seen; the scores are optimistic'
+        )
+    if len(test) == 0:
+        raise TrajectoryError(f'{data_path}: no trajectories to evaluate')
     truth = data.states[test]
     try:  # a policy trained for a longer period (data.policy_dt) is compared at its own dt
         ratio = period_ratio(data.dt, policy.dt, "the policy's dt")
@@ -122,6 +130,7 @@ def evaluate(
         'data': os.path.abspath(data_path),
         'scenario': spec.name,
         'test_trajectories': test.tolist(),
+        'trajectories_used': used,
         'robots': int(truth.shape[2]),
         'steps': T - 1,
         'dt': policy.dt,
@@ -257,7 +266,7 @@ def write_summary(path: str, r: Dict[str, Any]) -> None:
         f'# Evaluation: {r["scenario"]}',
         '',
         f'- policy: `{r["policy"]}`',
-        f'- data: `{r["data"]}` (test trajectories {r["test_trajectories"]})',
+        f'- data: `{r["data"]}` ({r.get("trajectories_used", "test")} trajectories {r["test_trajectories"]})',
         f'- {len(r["test_trajectories"])} rollouts of {r["robots"]} robots, {r["steps"]} steps of '
         f'{r["dt"]:.4g} s ({r["rollout_seconds"]} s)',
         '',
@@ -282,6 +291,9 @@ def write_summary(path: str, r: Dict[str, Any]) -> None:
             f'| rollouts staying in the cube | {r["rollouts_inside"]} / {len(r["test_trajectories"])} | |'
         )
     lines += [
+        '',
+        '± is the half-width of the 95 % confidence interval of the mean over the rollouts. Lower avd '
+        'is better (the robots move alike); amd should match the ground truth (the same spacing).',
         '',
         f'Goals: {r["goals"]}',
         '',

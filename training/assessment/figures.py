@@ -18,20 +18,46 @@ from .stats import mean_ci
 
 PRED_COLOUR, TRUE_COLOUR = 'tab:red', 'tab:blue'
 
+#: Axis labels with units (positions in metres, time in seconds; boids3d's avd compares unit headings).
+METRIC_LABELS = {
+    'avd': 'avd: velocity difference [m/s]',
+    'avd_heading': 'avd: heading difference (unit vectors)',
+    'amd': 'amd: mean nearest-neighbour distance [m]',
+    'pod_kld': 'POD-KLD (0 = same motion modes)',
+}
+#: Under the snapshots: what good looks like.
+SNAPSHOT_CAPTION = (
+    'Good: at each time the learnt swarm (left) looks like the ground truth (right), same start.'
+)
+#: Under every metric figure: what good looks like.
+CAPTION = (
+    "Good: the learnt swarm's curves (red) lie on the ground truth's (blue); a low avd means the "
+    'robots move alike (lower is better), amd is their spacing.'
+)
 
-def _save(fig, path: str, dpi: int = 100) -> None:
-    fig.tight_layout()
+
+def _save(fig, path: str, dpi: int = 100, caption: str = '') -> None:
+    """Lay out and write ``fig``; ``caption``: one line under the panels."""
+    if caption:
+        fig.text(0.5, 0.005, caption, ha='center', va='bottom', fontsize=8)
+    fig.tight_layout(rect=(0, 0.05 if caption else 0, 1, 1))
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
 def metric_curves(
-    path: str, time: np.ndarray, curves: Dict[str, Dict[str, np.ndarray]], title: str = ''
+    path: str,
+    time: np.ndarray,
+    curves: Dict[str, Dict[str, np.ndarray]],
+    title: str = '',
+    labels: Optional[Dict[str, str]] = None,
 ) -> None:
     """Mean and 95% confidence bands over trajectories.
 
-    ``curves = {metric: {"prediction": [S, T], "ground truth": [S, T]}}``; one panel per metric.
+    ``curves = {metric: {"prediction": [S, T], "ground truth": [S, T]}}``; one panel per metric,
+    its y label ``labels[metric]`` (default :data:`METRIC_LABELS`); avd on a log scale.
     """
+    labels = {**METRIC_LABELS, **(labels or {})}
     fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 3.6), squeeze=False)
     for ax, (name, series) in zip(axes[0], curves.items()):
         for label, values in series.items():
@@ -48,14 +74,14 @@ def metric_curves(
                 label=f'{label} 95% CI',
             )
         ax.set_xlabel('time [s]')
-        ax.set_ylabel(name)
+        ax.set_ylabel(labels.get(name, name))
         if name == 'avd':
-            ax.set_yscale('log')
+            ax.set_yscale('log')  # the flocked state is orders of magnitude below the start
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     if title:
         fig.suptitle(title)
-    _save(fig, path)
+    _save(fig, path, caption=CAPTION)
 
 
 def snapshots(
@@ -69,7 +95,8 @@ def snapshots(
 ) -> None:
     """Prediction beside ground truth (one trajectory ``[T, n, d]`` each) at ``frames``.
 
-    2D: positions with velocity arrows; 3D: positions with heading arrows in the cube.
+    2D: positions with velocity arrows (half a second of motion); 3D: positions with heading
+    arrows in the cube. Limits hold every robot and arrow of both panels of a row.
     """
     rows = len(frames)
     three_d = position_dim == 3
@@ -83,10 +110,14 @@ def snapshots(
                 ax = fig.add_subplot(rows, 2, 2 * r + c + 1, projection='3d')
                 ax.scatter(z[:, 0], z[:, 1], z[:, 2], color=colour, s=12)
                 ax.quiver(z[:, 0], z[:, 1], z[:, 2], z[:, 3], z[:, 4], z[:, 5], length=0.8, color=colour)
-                lim = box if box is not None else np.abs(z[:, :3]).max() + 1
+                reach = np.abs(np.concatenate([pred[f, :, :3], truth[f, :, :3]])).max() + 1
+                lim = max(box, reach) if box is not None else reach
                 ax.set_xlim(-lim, lim)
                 ax.set_ylim(-lim, lim)
                 ax.set_zlim(-lim, lim)
+                ax.set_xlabel('x [m]', fontsize=8)
+                ax.set_ylabel('y [m]', fontsize=8)
+                ax.set_zlabel('z [m]', fontsize=8)
             else:
                 ax = fig.add_subplot(rows, 2, 2 * r + c + 1)
                 ax.quiver(
@@ -100,15 +131,22 @@ def snapshots(
                     scale=2,
                     width=0.006,
                 )
-                ax.scatter(z[:, 0], z[:, 1], color=colour, s=14)
-                both = np.concatenate([pred[f, :, :2], truth[f, :, :2]])
-                centre = both.mean(0)
-                half = max(np.abs(both - centre).max() + 1.0, 2.0)
+                ax.scatter(z[:, 0], z[:, 1], color=colour, s=14, label='robot')
+                # arrows drawn at scale 2 reach half a velocity beyond their robot
+                tips = [s[f, :, :2] + s[f, :, 2:4] / 2 for s in (pred, truth)]
+                both = np.concatenate([pred[f, :, :2], truth[f, :, :2], *tips])
+                both = both[np.all(np.isfinite(both), axis=1)]
+                centre = both.mean(0) if len(both) else np.zeros(2)
+                half = max(np.abs(both - centre).max() + 0.5, 2.0) if len(both) else 2.0
                 ax.set_xlim(centre[0] - half, centre[0] + half)
                 ax.set_ylim(centre[1] - half, centre[1] + half)
                 ax.set_aspect('equal')
+                ax.set_xlabel('x [m]', fontsize=8)
+                ax.set_ylabel('y [m]', fontsize=8)
+                ax.plot([], [], color=colour, marker=r'$\rightarrow$', ls='', ms=10, label='velocity (0.5 s)')
+                ax.legend(fontsize=7, loc='upper right')
             ax.set_title(f'{label}, t = {f * dt:.2f} s', fontsize=9)
-    _save(fig, path)
+    _save(fig, path, caption=SNAPSHOT_CAPTION)
 
 
 def pod_bars(path: str, pred_energy: np.ndarray, true_energy: np.ndarray, kld: Sequence[float]) -> None:

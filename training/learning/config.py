@@ -25,7 +25,8 @@ from .objectives import OBJECTIVES
 DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
     'data': {
         'train_trajectories': None,
-        'val_trajectories': 4,
+        'val_trajectories': None,
+        'val_fraction': 0.2,
         'frames': None,
         'stride': 1,
         'drop_saturated': True,
@@ -216,10 +217,18 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
         'must be null or an integer >= 1',
     )
     _check(
-        isinstance(d['val_trajectories'], int) and d['val_trajectories'] >= 0,
+        d['val_trajectories'] is None
+        or (isinstance(d['val_trajectories'], int) and not isinstance(d['val_trajectories'], bool))
+        and d['val_trajectories'] >= 0,
         'data.val_trajectories',
         d['val_trajectories'],
-        'must be an integer >= 0',
+        'must be null (use data.val_fraction) or an integer >= 0',
+    )
+    _check(
+        num(d['val_fraction']) and 0 <= d['val_fraction'] < 1,
+        'data.val_fraction',
+        d['val_fraction'],
+        'must be a number in [0, 1)',
     )
     _check(
         d['frames'] is None or (pos_int(d['frames']) and d['frames'] >= 2),
@@ -374,6 +383,10 @@ def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[s
     try:
         return normalise_config(raw)
     except ConfigError as exc:
+        # a field set on the command line is reported there, not as an error of the file
+        blamed = [key for key in overrides or {} if f"'{key}'" in str(exc)]
+        if blamed:
+            raise ConfigError(f'--set {blamed[0]}={overrides[blamed[0]]}: {exc}') from None
         raise ConfigError(f'config file {path}: {exc}') from None
 
 

@@ -13,7 +13,7 @@ import math
 import os
 import sys
 import time
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import numpy as np
 import torch
@@ -31,6 +31,9 @@ from .period import period_ratio, policy_dt, subsample
 from .records import code_provenance, data_reference, write_json
 from .samples import concat_samples, implied_command, make_samples
 
+#: Seconds between progress lines within an epoch when the output is not a terminal.
+PROGRESS_EVERY_S = 60.0
+
 
 class DivergenceError(RunError, RuntimeError):
     """Training diverged (NaN or exploding loss); ``training.train`` exits 3 (documented there)."""
@@ -45,24 +48,95 @@ class DataError(KnodeError, ValueError):
     """The data file does not fit the config."""
 
 
-def split_data(cfg: Dict[str, Any], data) -> Dict[str, np.ndarray]:
-    """Train and validation trajectories ``[N, T, n, d]`` from the file's ``train`` split."""
+def held_out_count(cfg: Dict[str, Any], available: int) -> int:
+    """How many of ``available`` train-split trajectories validation holds out (whole trajectories).
+
+    ``data.val_trajectories`` (a count) when set and below ``available``, else
+    ``round(data.val_fraction * available)`` with a floor of one, always leaving one to train on.
+    With a single trajectory this is 0: :func:`split_data` splits that one in time instead.
+    """
+    dcfg = cfg['data']
+    count = dcfg['val_trajectories']
+    if count is not None and (count < available or count == 0):
+        return count
+    if dcfg['val_fraction'] == 0 or available < 2:
+        return 0
+    return min(max(1, round(dcfg['val_fraction'] * available)), available - 1)
+
+
+def split_data(cfg: Dict[str, Any], data, log=print) -> Dict[str, np.ndarray]:
+    """Train and validation trajectories ``[N, T, n, d]`` from the file's ``train`` split.
+
+    Whole trajectories are held out (:func:`held_out_count`). A split of one trajectory (one
+    recorded bag) is cut in time instead: train on the first ``1 - data.val_fraction`` of its
+    frames, validate on the rest; no sample window crosses the cut (each part is its own array).
+    ``val_from_frame`` is that cut (None for a split by trajectories).
+    """
     dcfg = cfg['data']
     idx = data.split('train')
     if dcfg['train_trajectories'] is not None:
         idx = idx[: dcfg['train_trajectories']]
-    n_val = dcfg['val_trajectories']
-    if n_val >= len(idx):
+    if len(idx) == 0:
         raise DataError(
-            f"config field 'data.val_trajectories' = {n_val}: the data's train split holds only "
-            f'{len(idx)} trajectories; keep at least one for training'
+            "the data's train split is empty (meta.split.train); regenerate or re-import it with train "
+            'trajectories (training.generate --train N, training.import_bag --test-trajectories 0)'
         )
     frames = data.states.shape[1] if dcfg['frames'] is None else min(dcfg['frames'], data.states.shape[1])
     if frames < 2:
         raise DataError(f'trajectories hold {data.states.shape[1]} frame(s); training needs at least 2')
     states = data.states[:, :frames]
+    n_val = held_out_count(cfg, len(idx))
+    asked = dcfg['val_trajectories']
+    if asked is not None and asked != n_val and len(idx) > 1:
+        log(
+            f"data.val_trajectories = {asked} but the data's train split holds only {len(idx)} "
+            f'trajectories: holding out {n_val} (data.val_fraction = {dcfg["val_fraction"]:g}, at least one)'
+        )
+    if len(idx) == 1 and dcfg['val_fraction'] > 0 and asked != 0:
+        cut = int(round((1 - dcfg['val_fraction']) * frames))
+        if cut < 2 or frames - cut < 2:
+            raise DataError(
+                f'one trajectory of {frames} frames is too short to split in time for validation '
+                f'(data.val_fraction = {dcfg["val_fraction"]:g}); record longer or --set data.val_fraction=0'
+            )
+        log(
+            f'one trajectory in the train split: training on its frames 0-{cut - 1}, validating on '
+            f'frames {cut}-{frames - 1} (the last {dcfg["val_fraction"]:.0%}, data.val_fraction)'
+        )
+        one = states[idx[0]]
+        return {
+            'train': one[None, :cut],
+            'val': one[None, cut:],
+            'train_idx': idx,
+            'val_idx': idx,
+            'val_from_frame': cut,
+        }
     train_idx, val_idx = idx[: len(idx) - n_val], idx[len(idx) - n_val :]
-    return {'train': states[train_idx], 'val': states[val_idx], 'train_idx': train_idx, 'val_idx': val_idx}
+    return {
+        'train': states[train_idx],
+        'val': states[val_idx],
+        'train_idx': train_idx,
+        'val_idx': val_idx,
+        'val_from_frame': None,
+    }
+
+
+def config_differences(old: Dict[str, Any], new: Dict[str, Any], prefix: str = '') -> List[str]:
+    """Dotted names of the fields whose values differ between two normalised configs, sorted."""
+    out: List[str] = []
+    for key in sorted(set(old) | set(new), key=str):
+        a, b = old.get(key), new.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += config_differences(a, b, f'{prefix}{key}.')
+        elif a != b or key not in old or key not in new:
+            out.append(f'{prefix}{key}')
+    return out
+
+
+def _lookup(cfg: Dict[str, Any], dotted: str) -> Any:
+    for key in dotted.split('.'):
+        cfg = cfg.get(key) if isinstance(cfg, dict) else None
+    return cfg
 
 
 def _epoch_generator(seed: int, epoch: int) -> torch.Generator:
@@ -131,7 +205,7 @@ class Trainer:
         self.splits, train_parts, val_parts = [], [], []
         for path in paths:
             data = self._load(path)
-            split = split_data(cfg, data)
+            split = split_data(cfg, data, log)
             if split['train'].shape[1] <= self.ratio:
                 raise DataError(
                     f'{path}: trajectories of {split["train"].shape[1]} frames are too short for '
@@ -238,6 +312,15 @@ class Trainer:
         self._write_config()
         self._claimed = True
 
+    def resume_hint(self) -> str:
+        """What a stopped run leaves and how to continue it (the Ctrl-C message of training.train)."""
+        if not self._claimed or self.epoch == 0:
+            return f'no epoch completed; nothing to resume in {self.out}'
+        return (
+            f'checkpoint after epoch {self.epoch} kept at {self.ckpt_path}; continue with the same '
+            'command plus --resume'
+        )
+
     def _last_good(self) -> str:
         if not self._claimed:
             return f'no epoch of this run completed; the files already in {self.out} were left as they were'
@@ -252,10 +335,20 @@ class Trainer:
         if not os.path.isfile(self.ckpt_path):
             raise DataError(f'--resume: no checkpoint at {self.ckpt_path}')
         ck = torch.load(self.ckpt_path, map_location='cpu', weights_only=False)
-        if ck['config'] != self.cfg:
+        changed = config_differences(ck['config'], self.cfg)
+        if changed and (changed != ['training.epochs'] or self.cfg['training']['epochs'] < ck['epoch']):
+            shown = '; '.join(
+                f'{key}: {_lookup(ck["config"], key)!r} in the checkpoint, {_lookup(self.cfg, key)!r} now'
+                for key in changed
+            )
             raise ConfigError(
-                f'--resume: the config differs from the one in {self.ckpt_path}; '
-                'use the same config (or a new --out)'
+                f'--resume: the config differs from the one in {self.ckpt_path} ({shown}); resume with '
+                'the same config and --set values (only training.epochs may grow), or train into a new --out'
+            )
+        if changed:
+            self.log(
+                f'--resume: training.epochs {ck["config"]["training"]["epochs"]} -> '
+                f'{self.cfg["training"]["epochs"]} (the learning-rate schedule stretches to the new count)'
             )
         self.policy.load_state_dict(ck['model'])
         self.opt.load_state_dict(ck['optimizer'])
@@ -348,6 +441,10 @@ class Trainer:
         from tqdm import tqdm
 
         start = time.perf_counter() - self.elapsed
+        # A bar only on a terminal: redirected to a file its redraws are one line of carriage returns;
+        # there the epoch lines (and a line every PROGRESS_EVERY_S within a long epoch) report instead.
+        show_bar = self.progress and sys.stderr.isatty()
+        heartbeat = self.progress and not show_bar
         if self.epoch == 0 and self.best is None:
             self._select_starting_model()
         while self.epoch < epochs:
@@ -360,12 +457,13 @@ class Trainer:
                 batches,
                 desc=f'epoch {e}/{epochs}',
                 leave=False,
-                disable=not self.progress,
+                disable=not show_bar,
                 mininterval=0.5,
                 file=sys.stderr,
             )
             total, count = 0.0, 0
-            for idx in bar:
+            said = time.perf_counter()
+            for b, idx in enumerate(bar):
                 loss = self.objective.loss(self.policy, idx, g)
                 value = loss.item()
                 if not math.isfinite(value) or (
@@ -390,7 +488,11 @@ class Trainer:
                     )
                 total += value * len(idx)
                 count += len(idx)
-                bar.set_postfix(loss=f'{total / count:.4g}')
+                # refresh=False: the bar redraws at mininterval, not on every batch
+                bar.set_postfix(loss=f'{total / count:.4g}', refresh=False)
+                if heartbeat and time.perf_counter() - said >= PROGRESS_EVERY_S:
+                    said = time.perf_counter()
+                    self.log(f'epoch {e}/{epochs}: batch {b + 1}/{len(batches)}, loss {total / count:.4g}')
             train_loss = total / count
             if not all(torch.all(torch.isfinite(p)) for p in self.policy.parameters()):
                 raise DivergenceError(
@@ -430,7 +532,9 @@ class Trainer:
             with open(self.metrics_path, 'a') as fh:
                 fh.write(json.dumps(record) + '\n')
             self._save_checkpoint()
-            msg = f'epoch {e}/{epochs} train {train_loss:.4g} val {record["val_loss"] if record["val_loss"] is None else format(record["val_loss"], ".4g")} lr {lr:.2e} ({epoch_s:.1f}s)'
+            val = record['val_loss']
+            val_text = 'None' if val is None else format(val, '.4g')
+            msg = f'epoch {e}/{epochs} train {train_loss:.4g} val {val_text} lr {lr:.2e} ({epoch_s:.1f}s)'
             if 'selection' in record:
                 msg += ' ' + _selection_text(record['selection'])
             self.log(msg)
@@ -478,6 +582,7 @@ class Trainer:
             'data_file': [os.path.basename(p) for p in self.data_paths],
             'train_trajectories': [sp['train_idx'].tolist() for sp in self.splits],
             'val_trajectories': [sp['val_idx'].tolist() for sp in self.splits],
+            'val_from_frame': [sp['val_from_frame'] for sp in self.splits],
         }
         if len(self.data_paths) == 1:
             return {k: v[0] for k, v in out.items()}

@@ -172,22 +172,29 @@ def follow(scenario: str, z0: np.ndarray, frames: int, dt: float, preset: str = 
     """The ground-truth swarm from a given start ``z0 [n, d]``: ``[frames, n, d]`` sampled every
     ``dt`` (frame 0 = ``z0``), e.g. beside a recorded run of a learnt policy from the same start.
 
-    flock2d only (boids3d observations keep the heading, not the speed, so a start cannot be
-    completed). The Tanner law is integrated at its own step (0.01 s) when ``dt`` is a whole
-    multiple of it, else at ``dt``. Raises ValueError for boids3d or a bad argument.
+    flock2d: the Tanner law at its own step (0.01 s) when ``dt`` is a whole multiple of it, else
+    at ``dt``. boids3d: observations keep the heading, not the speed, so the boids start at their
+    spawn speed ((min_speed + max_speed) / 2, what every boids3d start of this project has) and
+    step at their own dt (1/60 s); ``dt`` must be a whole multiple of it. Raises ValueError for a
+    bad argument.
     """
-    get_scenario(scenario)
-    if scenario != 'flock2d':
-        raise ValueError(f'no ground truth can follow a {scenario} start (observations hold no speed)')
+    spec = get_scenario(scenario)
     _check_preset(scenario, preset)
     z0 = np.asarray(z0, dtype=np.float64)
-    if z0.ndim != 2 or z0.shape[-1] != 4 or not np.all(np.isfinite(z0)):
-        raise ValueError(f'z0 must be a finite [n, 4] flock2d state, got shape {z0.shape}')
+    if z0.ndim != 2 or z0.shape[-1] != spec.state_dim or not np.all(np.isfinite(z0)):
+        raise ValueError(f'z0 must be a finite [n, {spec.state_dim}] {scenario} state, got shape {z0.shape}')
     if int(frames) != frames or frames < 1 or not (np.isfinite(dt) and dt > 0):
         raise ValueError(f'frames must be a positive integer and dt > 0, got {frames!r}, {dt!r}')
-    ratio = float(dt) / tanner.DT
-    sub = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1 else 1
-    swarm = TannerSwarm(z0[None], preset, dt=tanner.DT if sub > 1 or abs(ratio - 1) < 1e-6 else float(dt))
+    own = tanner.DT if scenario == 'flock2d' else boids.get_preset(preset).dt
+    ratio = float(dt) / own
+    whole = abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1
+    sub = int(round(ratio)) if whole else 1
+    if scenario == 'flock2d':
+        swarm = TannerSwarm(z0[None], preset, dt=own if whole else float(dt))
+    else:
+        if not whole:
+            raise ValueError(f'boids3d ground truth steps at {own:g} s; dt {dt:g} s is not a whole multiple')
+        swarm = BoidsSwarm.from_observation(z0[None], boids.get_preset(preset))
     out = np.empty((int(frames),) + z0.shape)
     out[0] = z0
     for t in range(1, int(frames)):

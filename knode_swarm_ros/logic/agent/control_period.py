@@ -52,8 +52,9 @@ class PeriodCheck:
         n = round(self.ratio)
         return n >= 2 and math.isclose(self.ratio, n, rel_tol=PERIOD_TOLERANCE)
 
-    def describe(self) -> str:
-        """Both periods, both rates and what the difference means ('' when equal)."""
+    def describe(self, rate_name: str = 'control_rate') -> str:
+        """Both periods, both rates and what the difference means ('' when equal); ``rate_name``
+        is what the reader sets the rate with (the agent's parameter, the launcher's ``--rate``)."""
         if self.equal:
             return ''
         period, dt = self.control_period, self.policy_dt
@@ -64,10 +65,10 @@ class PeriodCheck:
         else:
             how = f'every command is held {self.ratio:.3g} of a policy step (the policy expects longer holds)'
         return (
-            f"control period {period:g} s (control_rate {1 / period:g} Hz) differs from the policy's dt "
+            f"control period {period:g} s ({rate_name} {1 / period:g} Hz) differs from the policy's dt "
             f'{dt:g} s ({1 / dt:g} Hz): {how}, so the swarm does not run the controller that was trained. '
             f'Use a policy trained for this period (training.train --set data.policy_dt={period:g}) or '
-            f'control_rate {1 / dt:g}'
+            f'{rate_name} {1 / dt:g}'
         )
 
 

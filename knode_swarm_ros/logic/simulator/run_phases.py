@@ -275,10 +275,10 @@ class SimLifecycle:
             return
         if now - self.last_publish >= c.republish_period:
             self.publish()
-            self._throttled(
-                'waiting',
-                f'waiting for {len(agents)} agent(s) {_ids(agents)}{" and the recorder" if recorder else ""}',
+            who = ([f'{len(agents)} agent(s) {_ids(agents)}'] if agents else []) + (
+                ['the recorder'] if recorder else []
             )
+            self._throttled('waiting', f'waiting for {" and ".join(who)}')
 
     def _start(self, now: float) -> None:
         self.phase = 'running'

@@ -60,8 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         '--rate',
         type=float,
-        default=20.0,
-        help='realtime: control and publishing rate in Hz (simulated time); default 20',
+        default=None,
+        help="realtime: control and publishing rate in Hz (simulated time); default: the policy's own "
+        '(20 for the shipped flock2d realtime policy, 60 for boids3d)',
     )
     p.add_argument(
         '--rate-check',

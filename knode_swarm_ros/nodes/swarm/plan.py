@@ -33,7 +33,9 @@ __all__ = [
 DOMAIN_RANGE = (30, 101)  # valid ids with the default port mapping, away from the default 0
 #: The most robots any node accepts (the 'robots' parameter range of agent, simulator, recorder).
 MAX_ROBOTS = 10_000
-#: Private memory of one process, measured with the CPU build of torch (docs/DESIGN.md):
+#: --rate when not given, in lockstep and ground-truth runs (Hz); realtime agents run at the policy's rate.
+DEFAULT_RATE = 20.0
+#: Private memory of one process, with the CPU build of torch (docs/DESIGN.md):
 #: an agent about 330 MB; the simulator and the recorder (numpy, no torch) far less.
 AGENT_MB, NODE_MB = 330, 150
 #: The monitor's web page port when ``--monitor`` names none.
@@ -64,7 +66,7 @@ class Plan:
     variant: str = ''
     seed: int = 0
     init: str = ''  # 'ABSOLUTE.npz:TRAJ' or ''
-    rate: float = 20.0
+    rate: float = DEFAULT_RATE
     rate_check: str = 'warn'
     real_time_factor: float = 1.0
     state_timeout: float = 0.5
@@ -129,7 +131,9 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise ConfigError(f'--steps must be >= 0, got {args.steps}')
     if args.robots is not None and not 1 <= args.robots <= MAX_ROBOTS:
         raise ConfigError(f"--robots must be in 1..{MAX_ROBOTS} (the nodes' limit), got {args.robots}")
-    for name in ('rate', 'real_time_factor', 'state_timeout', 'lockstep_timeout', 'startup_timeout'):
+    if args.rate is not None and not args.rate > 0:
+        raise ConfigError(f'--rate must be > 0, got {args.rate}')
+    for name in ('real_time_factor', 'state_timeout', 'lockstep_timeout', 'startup_timeout'):
         value = getattr(args, name)
         if not value > 0:
             raise ConfigError(f'--{name.replace("_", "-")} must be > 0, got {value}')
@@ -167,7 +171,7 @@ def _policy(args: argparse.Namespace):
         elif args.mode == 'realtime':  # the shipped policy trained for --rate, if there is one
             from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
 
-            policy_path = str(shipped_policy_for_rate(scenario or 'flock2d', args.rate)[0])
+            policy_path = str(shipped_policy_for_rate(scenario or 'flock2d', args.rate or DEFAULT_RATE)[0])
         else:
             policy_path = str(shipped_policy_path(scenario or 'flock2d'))
         policy = load_runtime(policy_path, args.policy_runtime)
@@ -203,6 +207,14 @@ def _robots_and_init(args: argparse.Namespace, scenario: str):
     if robots > MAX_ROBOTS:
         raise ConfigError(f'--init {init} has {robots} robots; the nodes take at most {MAX_ROBOTS}')
     return robots, init
+
+
+def _rate(args: argparse.Namespace, dt: float) -> float:
+    """``--rate``, or without it: realtime the policy's own rate (no held commands, no warning),
+    lockstep :data:`DEFAULT_RATE` (there it only paces publishing)."""
+    if args.rate is not None:
+        return float(args.rate)
+    return 1.0 / dt if args.mode == 'realtime' and not args.ground_truth else DEFAULT_RATE
 
 
 def plan_run(args: argparse.Namespace) -> Plan:
@@ -289,7 +301,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
         variant=args.variant,
         seed=int(args.seed),
         init=init,
-        rate=float(args.rate),
+        rate=_rate(args, dt),
         rate_check=args.rate_check,
         real_time_factor=float(args.real_time_factor),
         state_timeout=float(args.state_timeout),

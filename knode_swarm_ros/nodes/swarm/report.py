@@ -1,8 +1,9 @@
 """The launcher's closing summary: the recording's metrics, the simulator's figures and a PNG.
 
-For a flock2d run of a learnt policy the ground-truth swarm from the recording's first frame
-(:func:`knode_swarm_ros.core.groundtruth.follow`) is summarised and drawn beside it, so that
-one sees at a glance how close the learnt swarm comes to the one it learnt from.
+For a run of a learnt policy the ground-truth swarm from the recording's first frame
+(:func:`knode_swarm_ros.core.groundtruth.follow`: Tanner's law, or the boids at their spawn
+speed) is summarised and drawn beside it, so that one sees at a glance how close the learnt
+swarm comes to the one it learnt from.
 """
 
 from __future__ import annotations
@@ -13,7 +14,13 @@ from typing import Dict, Optional
 
 from .console import say as _say
 
-__all__ = ['summarise', 'write_figure']
+__all__ = ['summarise', 'write_figure', 'CAPTION']
+
+#: What good looks like, under every figure of a run.
+CAPTION = (
+    'Good: avd falls low (the robots move alike; lower is better) and amd settles near the '
+    "ground truth's (the same spacing)."
+)
 
 
 def summarise(plan) -> Optional[Dict]:
@@ -86,8 +93,9 @@ def summarise(plan) -> Optional[Dict]:
             'avd_last10pct': float(tl[0]),
             'amd_last10pct': float(tl[1]),
         }
+        law = 'Tanner law' if data.scenario == 'flock2d' else 'boids'
         _say(
-            f'ground truth from the same start ({_variant(plan)} Tanner law): avd {tl[0]:.4f}, amd {tl[1]:.4f} '
+            f'ground truth from the same start ({_variant(plan)} {law}): avd {tl[0]:.4f}, amd {tl[1]:.4f} '
             f'(mean of the last 10%; the learnt swarm: avd {last[0]:.4f}, amd {last[1]:.4f})'
         )
     if plan.figure is not None:
@@ -110,15 +118,15 @@ def _variant(plan) -> str:
 
 def _ground_truth(plan, states, data, swarm_metrics):
     """The ground-truth swarm ``[T, n, d]`` from the recording's first frame and its (avd, amd)
-    per frame, or (None, None): boids3d, a run that is itself the ground truth, a bad start."""
+    per frame, or (None, None): a run that is itself the ground truth, a bad start."""
     import numpy as np
 
     from knode_swarm_ros.core.groundtruth import follow
 
-    if data.scenario != 'flock2d' or getattr(plan, 'ground_truth', False):
+    if getattr(plan, 'ground_truth', False):
         return None, None
     try:
-        truth = follow('flock2d', states[0], states.shape[0], float(data.dt), _variant(plan))
+        truth = follow(data.scenario, states[0], states.shape[0], float(data.dt), _variant(plan))
     except ValueError as exc:
         _say(f'no ground truth beside the run: {exc}')
         return None, None
@@ -126,12 +134,13 @@ def _ground_truth(plan, states, data, swarm_metrics):
 
 
 def _draw_trajectories(ax, states, scenario: str, title: str) -> None:
+    # one grey path per robot: a boids3d swarm of colours is a tangle; start and end say the rest
     for i in range(states.shape[1]):
-        ax.plot(states[:, i, 0], states[:, i, 1], lw=0.8)
+        ax.plot(states[:, i, 0], states[:, i, 1], lw=0.6, color='0.6')
     ax.scatter(states[0, :, 0], states[0, :, 1], c='k', s=10, marker='o', label='start')
     ax.scatter(states[-1, :, 0], states[-1, :, 1], c='r', s=14, marker='x', label='end')
-    ax.set_xlabel('x')
-    ax.set_ylabel('y')
+    ax.set_xlabel('x [m]')
+    ax.set_ylabel('y [m]')
     ax.set_aspect('equal', adjustable='datalim')
     ax.legend(loc='best', fontsize=8)
     ax.set_title(title + (' (x-y projection)' if scenario == 'boids3d' else ''))
@@ -169,20 +178,24 @@ def write_figure(
                 ax.set_xlim(lo[0] - pad, hi[0] + pad)
                 ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax_avd, ax_amd = axes[-2], axes[-1]
-    for ax, col, name in (
-        (ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference'),
-        (ax_amd, 1, 'amd: nearest-neighbour distance'),
+    avd_unit = '[m/s]' if scenario == 'flock2d' else '(unit headings)'
+    for ax, col, name, unit in (
+        (ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference', avd_unit),
+        (ax_amd, 1, 'amd: nearest-neighbour distance', '[m]'),
     ):
         ax.plot(t, metrics[:, col], label='learnt' if truth is not None else None)
         if truth is not None:
             ax.plot(np.arange(truth.shape[0]) * dt, truth_metrics[:, col], '--', label='ground truth')
             ax.legend(loc='best', fontsize=8)
         ax.set_xlabel('t [s]')
+        ax.set_ylabel(f'{name.split(":")[0]} {unit}')
         ax.set_title(name)
-    if truth is not None:
-        ax_avd.set_yscale('log')  # the flocked state is orders of magnitude below the start
+    ax_avd.set_yscale(
+        'log'
+    )  # as in training.evaluate: the flocked state is orders of magnitude below the start
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.text(0.5, 0.01, CAPTION, ha='center', fontsize=9)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -65,7 +65,7 @@ def run(plan: Plan) -> int:
                     from knode_swarm_ros.logic.agent.control_period import check_control_period
 
                     _say(
-                        check_control_period(plan.rate, plan.dt).describe()
+                        check_control_period(plan.rate, plan.dt).describe('--rate')
                         or f'control period = policy dt ({plan.dt:g} s)'
                     )
             failed = _start_in_stages(plan, commands, env, children, t0)
