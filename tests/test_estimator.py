@@ -122,3 +122,21 @@ def test_pose_observed_rollout_hears_estimates_exact_states_are_written():
 def test_pose_observation_of_a_heading_scenario_is_the_state():
     z = np.array([[0.0, 1.0, 2.0, 1.0, 0.0, 0.0]])
     np.testing.assert_array_equal(PoseObserver(get_scenario('boids3d')).observe(0, z), z)
+
+
+def test_import_option_gives_the_agents_estimates_on_the_grid():
+    from training.data.derive import causal_velocities
+    from training.data.tracks import ResampleOptions, TrackError, check_resample_options
+
+    p = np.cumsum(np.random.default_rng(2).normal(size=(20, 3, 2)), axis=0)
+    est = VelocityEstimator(5)
+    want = [est.update(int(round(k * 0.05 * 1e9)), p[k]) for k in range(20)]
+    np.testing.assert_array_equal(causal_velocities(p, 0.05, 5), np.stack(want))
+    check_resample_options(ResampleOptions('flock2d', 20.0, velocity_estimator=5))
+    for bad in (
+        ResampleOptions('flock2d', 20.0, velocity_estimator=1),
+        ResampleOptions('boids3d', 20.0, velocity_estimator=5),
+        ResampleOptions('flock2d', 20.0, velocity_estimator=5, use_twist=True),
+    ):
+        with pytest.raises(TrackError, match='--velocity-estimator'):
+            check_resample_options(bad)
