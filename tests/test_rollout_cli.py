@@ -54,3 +54,28 @@ def test_errors_exit_2(files, tmp_path, capsys):
     save_trajectories(boids, np.tile(np.array([0, 0, 0, 1.0, 0, 0]), (1, 1, 2, 1)), 1 / 60, 'boids3d', {})
     assert main(['--policy', str(pol), '--init', str(boids), '--steps', '3', '--out', out]) == 2
     assert 'scenario' in capsys.readouterr().err
+
+
+def test_observe_pose_equals_core_rollout_with_poses(files, tmp_path):
+    pol, data, states = files
+    out = tmp_path / 'pose.npz'
+    argv = ['--policy', str(pol), '--init', str(data), '--steps', '12', '--out', str(out)]
+    assert main(argv + ['--observe', 'pose', '--velocity-window', '4']) == 0
+    got = load_trajectories(out, scenario='flock2d')
+    policy = load_policy(pol)
+    want = rollout(
+        policy,
+        states[0, 0],
+        12,
+        'flock2d',
+        policy.d_cr,
+        policy.k,
+        policy.tau,
+        policy.dt,
+        observe='pose',
+        velocity_window=4,
+    )
+    np.testing.assert_array_equal(got.states[0], want)
+    assert got.meta['observe'] == {'kind': 'pose', 'velocity_window': 4}
+    assert main(argv + ['--velocity-window', '1']) == 2
+    assert main(argv + ['--observe', 'pose', '--link-loss', '0.1']) == 2

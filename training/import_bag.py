@@ -195,6 +195,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         '--smooth-window', type=int, default=5, metavar='N', help='odd window in output samples (5)'
     )
+    p.add_argument(
+        '--velocity-estimator',
+        type=int,
+        default=0,
+        metavar='N',
+        help="flock2d: velocities by the agents' causal estimator over N samples, as robots hearing "
+        'poses only estimate them (default 0: finite differences)',
+    )
     p.add_argument('--smooth-order', type=int, default=2, metavar='K', help='Savitzky-Golay order (2)')
     p.add_argument(
         '--use-twist',
@@ -264,6 +272,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             smooth=args.smooth,
             smooth_window=args.smooth_window,
             smooth_order=args.smooth_order,
+            velocity_estimator=args.velocity_estimator,
             use_twist=args.use_twist,
             twist_frame=args.twist_frame,
             use_orientation=args.use_orientation,

@@ -303,6 +303,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument('--smooth', choices=('none', 'moving-average', 'savgol'), default='none')
     p.add_argument('--smooth-window', type=int, default=5, metavar='N')
+    p.add_argument(
+        '--velocity-estimator',
+        type=int,
+        default=0,
+        metavar='N',
+        help="flock2d: velocities by the agents' causal estimator over N samples, as robots hearing "
+        'poses only estimate them (default 0: finite differences)',
+    )
     p.add_argument('--smooth-order', type=int, default=2, metavar='K')
     p.add_argument('--heading-diff', choices=('backward', 'central'), default='backward')
     p.add_argument('--min-speed', type=float, default=1e-3, metavar='M_PER_S')
@@ -330,6 +338,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             smooth=args.smooth,
             smooth_window=args.smooth_window,
             smooth_order=args.smooth_order,
+            velocity_estimator=args.velocity_estimator,
             heading_diff=args.heading_diff,
             min_speed=args.min_speed,
             test_trajectories=args.test_trajectories,

@@ -1,6 +1,7 @@
 """Roll a policy file out from a trajectory's initial state (canonical ZOH semantics).
 
     python -m training.rollout --policy P.pt --init FILE.npz[:TRAJ] --steps T --out OUT.npz [--runtime onnxruntime] \
+        [--observe pose [--velocity-window N]] \
         [--link-loss P --link-delay-steps N --link-jitter-steps N --link-range M --seed S]
 
 Any valid policy file works (whoever wrote it): the policy's ``k``, ``d_cr``, ``tau`` and
@@ -11,6 +12,9 @@ or, with any ``--link-*`` option, by :func:`knode_swarm_ros.core.link.link_rollo
 link model: loss, delay and jitter in steps, radio range; seeded; its counters go into ``meta``).
 ``--runtime`` picks the policy backend as the agent's ``policy_runtime`` does (default
 ``torchscript``, the reference; ``onnxruntime`` rolls the ONNX twin out, as robots run it).
+``--observe pose`` makes the robots hear poses only, as a motion-capture fleet does: every
+velocity in what they hear is estimated by the agents' estimator (:mod:`knode_swarm_ros.core.estimator`,
+``--velocity-window`` samples); the states written are the true ones.
 """
 
 from __future__ import annotations
@@ -33,7 +37,9 @@ from knode_swarm_ros.core import (
 )
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.estimator import DEFAULT_WINDOW
 from knode_swarm_ros.core.link import LinkConfig, link_rollout
+from knode_swarm_ros.core.rollout import OBSERVATIONS
 
 
 def rollout_file(
@@ -45,6 +51,8 @@ def rollout_file(
     runtime: str = 'torchscript',
     link: Optional[LinkConfig] = None,
     timeout_steps: Optional[int] = None,
+    observe: str = 'state',
+    velocity_window: int = DEFAULT_WINDOW,
 ) -> np.ndarray:
     """Roll ``policy_path`` out from frame 0 of ``init_ref`` and write ``out``; returns ``[T + 1, n, d]``."""
     policy = load_runtime(policy_path, runtime)
@@ -59,7 +67,11 @@ def rollout_file(
     step_dt = policy.dt if dt is None else float(dt)
     z0 = data.states[index, 0]
     extra = {}
+    if observe != 'state':
+        extra['observe'] = {'kind': observe, 'velocity_window': int(velocity_window)}
     if link is not None and link.enabled:
+        if observe != 'state':
+            raise KnodeError('--observe pose does not combine with the link model (--link-*)')
         timeout = timeout_steps if timeout_steps is not None else max(1, round(0.5 / step_dt))
         states, stats = link_rollout(
             policy, z0, steps, policy.scenario, policy.d_cr, policy.k, policy.tau, step_dt, link, timeout
@@ -76,7 +88,18 @@ def rollout_file(
             }
         }
     else:
-        states = rollout(policy, z0, steps, policy.scenario, policy.d_cr, policy.k, policy.tau, step_dt)
+        states = rollout(
+            policy,
+            z0,
+            steps,
+            policy.scenario,
+            policy.d_cr,
+            policy.k,
+            policy.tau,
+            step_dt,
+            observe=observe,
+            velocity_window=velocity_window,
+        )
     meta = {
         **extra,
         'generator': 'training.rollout',
@@ -107,6 +130,19 @@ def main(argv: Optional[List[str]] = None) -> int:
         choices=RUNTIMES,
         default='torchscript',
         help='policy backend (default torchscript; auto: the ONNX twin when it exists)',
+    )
+    parser.add_argument(
+        '--observe',
+        choices=OBSERVATIONS,
+        default='state',
+        help='what robots hear: exact states (default) or poses, velocities estimated',
+    )
+    parser.add_argument(
+        '--velocity-window',
+        type=int,
+        default=DEFAULT_WINDOW,
+        metavar='N',
+        help=f'--observe pose: samples of the velocity fit (default {DEFAULT_WINDOW})',
     )
     parser.add_argument('--dt', type=float, default=None, help="step in seconds (default: the policy's dt)")
     parser.add_argument(
@@ -143,8 +179,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     link.validate(prefix='--link-')
     if args.link_timeout_steps is not None and args.link_timeout_steps < 0:
         raise KnodeError(f'--link-timeout-steps must be >= 0, got {args.link_timeout_steps}')
+    if args.velocity_window < 2:
+        raise KnodeError(f'--velocity-window must be >= 2, got {args.velocity_window}')
     states = rollout_file(
-        args.policy, args.init, args.steps, args.out, args.dt, args.runtime, link, args.link_timeout_steps
+        args.policy,
+        args.init,
+        args.steps,
+        args.out,
+        args.dt,
+        args.runtime,
+        link,
+        args.link_timeout_steps,
+        args.observe,
+        args.velocity_window,
     )
     print(f'wrote {args.out}: {states.shape[0]} frames of {states.shape[1]} robots')
     return 0

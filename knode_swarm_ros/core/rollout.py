@@ -12,6 +12,11 @@ and ``dimensions``), never its name.
 
 The simulator node and the parity tests use :func:`zoh_step`; offline evaluation uses
 :func:`rollout`, batched over several swarms at once.
+
+Observation: with ``observe='state'`` the robots hear the exact states; with ``observe='pose'``
+(a fleet that publishes poses only, motion capture) they hear positions, and a state's velocity
+is estimated from each robot's position stream by :class:`core.estimator.VelocityEstimator`,
+the estimator the agents run (stamps of step t: ``round(t dt 1e9)`` ns, as the nodes stamp).
 """
 
 from __future__ import annotations
@@ -20,11 +25,24 @@ from typing import Any, Callable, Mapping, Optional, Union
 
 import numpy as np
 
+from .estimator import DEFAULT_WINDOW, VelocityEstimator
 from .network import neighbour_matrix, neighbour_matrix_torch
 from .saturation import saturate
 from .scenarios import Scenario, get_scenario
 
-__all__ = ['zoh_step', 'zoh_step_torch', 'rollout', 'rollout_torch', 'policy_commands', 'PolicyFn']
+__all__ = [
+    'zoh_step',
+    'zoh_step_torch',
+    'rollout',
+    'rollout_torch',
+    'policy_commands',
+    'PolicyFn',
+    'OBSERVATIONS',
+    'PoseObserver',
+]
+
+#: What the robots hear of each other: exact states, or poses with estimated velocities.
+OBSERVATIONS = ('state', 'pose')
 
 # A policy maps Y [B, k, d] and mask [B, k] to commands [B, m] (numpy float64 in and out).
 PolicyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -95,6 +113,24 @@ def policy_commands(
     return out.reshape(lead + (scenario.command_dim,))
 
 
+class PoseObserver:
+    """States as heard from poses: the position exact, the velocity (when the state has one)
+    estimated from the positions heard so far; without a velocity the state is the pose itself.
+
+    ``observe(stamp_ns, z [..., n, d])`` -> the heard states ``[..., n, d]`` (float64 copy).
+    """
+
+    def __init__(self, scenario: Scenario, window: int = DEFAULT_WINDOW):
+        self.spec = scenario
+        self.estimator = VelocityEstimator(window) if scenario.velocity is not None else None
+
+    def observe(self, stamp_ns: int, z: np.ndarray) -> np.ndarray:
+        heard = np.array(z, dtype=np.float64, copy=True)
+        if self.estimator is not None:
+            heard[..., self.spec.velocity] = self.estimator.update(stamp_ns, heard[..., self.spec.position])
+        return heard
+
+
 def rollout(
     policy: PolicyFn,
     z0: np.ndarray,
@@ -106,6 +142,8 @@ def rollout(
     dt: float,
     progress: Optional[Callable[[int], None]] = None,
     command_limit=_POLICY_LIMIT,
+    observe: str = 'state',
+    velocity_window: int = DEFAULT_WINDOW,
 ) -> np.ndarray:
     """Roll a policy out from initial states.
 
@@ -119,6 +157,8 @@ def rollout(
         command_limit: per-axis saturation of every command (None: none); by default the
             policy's ``command_limit`` attribute (a :class:`LoadedPolicy` has its knode.json
             value), so the offline rollout applies exactly what an agent applies.
+        observe: ``state`` (exact states heard) or ``pose`` (velocities estimated from the
+            positions, window ``velocity_window`` samples: :class:`PoseObserver`).
 
     Returns:
         float64 ``[S, steps + 1, n, d]`` (``[steps + 1, n, d]`` for a single ``[n, d]`` input).
@@ -132,13 +172,21 @@ def rollout(
         raise ValueError(f'z0 must be [n, {spec.state_dim}] or [S, n, {spec.state_dim}], got {z0.shape}')
     if steps < 0:
         raise ValueError(f'steps must be >= 0, got {steps}')
+    if observe not in OBSERVATIONS:
+        raise ValueError(f'observe must be one of {", ".join(OBSERVATIONS)}, got {observe!r}')
     if command_limit is _POLICY_LIMIT:
         command_limit = getattr(policy, 'command_limit', None)
     out = np.empty((z0.shape[0], steps + 1) + z0.shape[1:], dtype=np.float64)
     out[:, 0] = z0
+    heard = out  # exact states; with poses, the estimates (frame t is filled at step t)
+    if observe == 'pose':
+        observer = PoseObserver(spec, velocity_window)
+        heard = np.empty_like(out)
     for t in range(steps):
-        z_delayed = out[:, max(t - tau, 0)]
-        command = policy_commands(policy, out[:, t], z_delayed, spec, d_cr, k, command_limit)
+        if observe == 'pose':
+            heard[:, t] = observer.observe(int(round(t * float(dt) * 1e9)), out[:, t])
+        z_delayed = heard[:, max(t - tau, 0)]
+        command = policy_commands(policy, heard[:, t], z_delayed, spec, d_cr, k, command_limit)
         out[:, t + 1] = zoh_step(out[:, t], command, spec, dt)
         if progress is not None:
             progress(t)

@@ -16,7 +16,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ['effective_limit', 'saturate', 'stop_command']
+__all__ = ['effective_limit', 'saturate', 'stop_command', 'velocity_setpoint']
 
 
 def effective_limit(policy_limit: Optional[float], requested: Optional[float] = None) -> Optional[float]:
@@ -67,3 +67,21 @@ def stop_command(command_kind: str, velocity, limit: Optional[float], dt: float)
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f'dt must be > 0, got {dt}')
     return saturate(-v / float(dt), limit)
+
+
+def velocity_setpoint(
+    velocity, acceleration, period: float, speed_limit: Optional[float] = None
+) -> np.ndarray:
+    """The velocity setpoint ``[..., m]`` that stands for an acceleration command on a robot whose
+    controller takes velocities: ``v_sp = v + u T``, clipped per axis at ``speed_limit`` (None:
+    no limit).
+
+    Args:
+        velocity: ``[..., m]`` the robot's (estimated) velocity now.
+        acceleration: ``[..., m]`` the policy's (saturated) acceleration command.
+        period: T, the control period in seconds: the setpoint is where the velocity would be
+            after one period of the commanded acceleration, so a velocity loop that tracks it
+            within the period reproduces the double integrator.
+    """
+    v_sp = np.asarray(velocity, dtype=np.float64) + np.asarray(acceleration, dtype=np.float64) * float(period)
+    return saturate(v_sp, speed_limit)

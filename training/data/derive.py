@@ -10,10 +10,11 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from knode_swarm_ros.core import get_scenario
+from knode_swarm_ros.core.estimator import VelocityEstimator
 
 from .tracks import ResampleOptions, Track, TrackError
 
-__all__ = ['finite_difference', 'moving_average', 'derive_states']
+__all__ = ['finite_difference', 'moving_average', 'causal_velocities', 'derive_states']
 
 
 def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
@@ -30,6 +31,14 @@ def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
         v[0] = v[1]
         return v
     raise ValueError(f'unknown difference scheme {scheme!r}')
+
+
+def causal_velocities(p: np.ndarray, dt: float, window: int) -> np.ndarray:
+    """Velocities ``[L, ...]`` of positions ``p [L, ...]`` on a grid of ``dt`` by the agents' causal
+    estimator (:class:`knode_swarm_ros.core.estimator.VelocityEstimator`, stamps as the nodes stamp
+    step k): what a robot hearing these poses estimates, lag and noise included (frame 0: at rest)."""
+    est = VelocityEstimator(window)
+    return np.stack([est.update(int(round(k * float(dt) * 1e9)), p[k]) for k in range(p.shape[0])])
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
@@ -89,6 +98,8 @@ def derive_states(
     if spec.velocity is not None:
         if opts.use_twist:
             vel = interp(lambda r: r.given_velocity(opts.twist_frame))
+        elif opts.velocity_estimator:
+            vel = causal_velocities(pos, dt, opts.velocity_estimator)
         else:
             vel = _smooth(finite_difference(pos, dt, 'central'), opts, notes, label)
         return np.concatenate([pos, vel], axis=2), None

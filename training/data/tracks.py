@@ -91,6 +91,7 @@ class ResampleOptions:
     use_orientation: bool = False  # heading from the given headings (a bag: the pose orientation)
     heading_diff: str = 'backward'  # position_heading: backward | central differences
     min_speed: float = 1e-3  # position_heading: slower samples take the nearest valid heading
+    velocity_estimator: int = 0  # N > 0: velocities by the agents' causal estimator (window N samples)
     test_trajectories: int = 0  # the last K trajectories form meta.split.test
 
 
@@ -117,6 +118,13 @@ def check_resample_options(opts: ResampleOptions, error=TrackError) -> None:
         raise error(f'--min-duration must be >= 0, got {opts.min_duration}')
     if opts.test_trajectories < 0:
         raise error(f'--test-trajectories must be >= 0, got {opts.test_trajectories}')
+    if opts.velocity_estimator and (opts.velocity_estimator < 2 or spec.velocity is None):
+        raise error(
+            f'--velocity-estimator {opts.velocity_estimator}: needs a window >= 2 and a scenario with '
+            'velocities (flock2d)'
+        )
+    if opts.velocity_estimator and (opts.use_twist or opts.smooth != 'none'):
+        raise error('--velocity-estimator excludes --use-twist and --smooth')
     if opts.heading_diff not in ('backward', 'central'):
         raise error(f'--heading-diff {opts.heading_diff}: choose backward or central')
 

@@ -1,0 +1,106 @@
+"""Velocities from a pose stream: one causal estimator for deployment, recordings and the offline rollout.
+
+Motion capture gives positions only; a scenario whose state holds velocities (``flock2d``,
+``boids3d``) then needs them estimated. :class:`VelocityEstimator` fits a straight line, by least
+squares, to the newest ``window`` (time, position) samples of a robot and returns its slope:
+
+    v_hat = sum_j w_j p_j,   w_j = (t_j - t_bar) / sum_k (t_k - t_bar)^2
+
+(t_bar the mean sample time). It is causal (only samples already heard) and uses the samples'
+own stamps, so an uneven stream is handled as it is.
+
+Properties (N = ``window`` samples, spaced h seconds, position noise sigma per axis):
+
+* exact for a constant velocity as soon as two samples are in (fewer than N: the fit uses
+  what it has; one sample: velocity 0, nothing is known yet);
+* lag: for any signal whose velocity changes linearly (constant acceleration) the slope is the
+  velocity at the window's mean time, so the estimate lags by ``(N - 1) h / 2`` seconds; after a
+  step in velocity the estimate is exact again once the N samples all lie after the step;
+* noise gain: white position noise gives a velocity error of standard deviation
+  ``sigma * sqrt(12 / (N (N^2 - 1))) / h`` per axis (:func:`noise_gain`).
+
+Equality across paths: the agent estimates robot by robot (``p [d]``) and the offline rollout
+all robots at once (``p [..., n, d]``); both accumulate the same weights in the same order with
+elementwise operations only, so their estimates are equal bit for bit. Stamps are integer
+nanoseconds (the nodes' stamps), taken relative to the newest.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Deque, Optional, Tuple
+
+import numpy as np
+
+__all__ = ['VelocityEstimator', 'DEFAULT_WINDOW', 'noise_gain', 'lag_s', 'fit_weights']
+
+#: Samples per fit: at 100 Hz mocap, 45 ms of lag and 0.11 sigma / h of velocity noise.
+DEFAULT_WINDOW = 10
+
+
+def noise_gain(window: int, period_s: float) -> float:
+    """Velocity standard deviation per unit of position noise: ``sqrt(12 / (N (N^2 - 1))) / h``."""
+    n = int(window)
+    return math.sqrt(12.0 / (n * (n * n - 1))) / float(period_s)
+
+
+def lag_s(window: int, period_s: float) -> float:
+    """The estimate's lag in seconds for an evenly spaced stream: ``(N - 1) h / 2``."""
+    return (int(window) - 1) * float(period_s) / 2.0
+
+
+def fit_weights(stamps_ns) -> Tuple[float, ...]:
+    """Least-squares slope weights ``w_j`` (``v = sum w_j p_j``) of samples stamped ``stamps_ns``
+    (oldest first); all zero for a single sample."""
+    newest = int(stamps_ns[-1])
+    t = [(int(s) - newest) * 1e-9 for s in stamps_ns]
+    mean = sum(t) / len(t)
+    spread = sum((x - mean) ** 2 for x in t)
+    if spread <= 0.0:
+        return tuple(0.0 for _ in t)
+    return tuple((x - mean) / spread for x in t)
+
+
+class VelocityEstimator:
+    """Causal least-squares velocity of one pose stream (one robot, or every robot at once).
+
+    Args:
+        window: N, the number of newest samples the line is fitted to (>= 2).
+
+    ``update(stamp_ns, p)`` takes a position ``p [..., dim]`` and returns the velocity estimate
+    ``[..., dim]`` (float64). A sample not newer than the newest one is ignored (a repeated or
+    late message) and the current estimate returned.
+    """
+
+    def __init__(self, window: int = DEFAULT_WINDOW):
+        if int(window) < 2:
+            raise ValueError(f'the velocity window must hold >= 2 samples, got {window}')
+        self.window = int(window)
+        self._stamps: Deque[int] = deque(maxlen=self.window)
+        self._positions: Deque[np.ndarray] = deque(maxlen=self.window)
+        self._velocity: Optional[np.ndarray] = None
+
+    @property
+    def newest_ns(self) -> Optional[int]:
+        """Stamp of the newest sample used (None before any)."""
+        return self._stamps[-1] if self._stamps else None
+
+    @property
+    def velocity(self) -> Optional[np.ndarray]:
+        """The current estimate (None before any sample)."""
+        return self._velocity
+
+    def update(self, stamp_ns: int, position) -> np.ndarray:
+        """Add a sample and return the velocity estimate ``[..., dim]``."""
+        stamp_ns = int(stamp_ns)
+        if self._stamps and stamp_ns <= self._stamps[-1]:
+            return self._velocity
+        self._stamps.append(stamp_ns)
+        self._positions.append(np.array(position, dtype=np.float64, copy=True))
+        weights = fit_weights(self._stamps)
+        v = np.zeros_like(self._positions[-1])
+        for w, p in zip(weights, self._positions):  # one fixed order: equal results across shapes
+            v = v + w * p
+        self._velocity = v
+        return v
