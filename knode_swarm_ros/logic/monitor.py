@@ -39,6 +39,7 @@ __all__ = [
     'HEALTH',
     'HEALTH_CODES',
     'NETWORK_DEFAULTS',
+    'network_defaults',
     'Snapshot',
     'SwarmWatch',
     'Throttle',
@@ -56,6 +57,16 @@ MONITOR_MARKERS_TOPIC = 'monitor/markers'  # visualization_msgs/MarkerArray
 #: (d_cr, k) of the paper's policies per scenario, those of core.policy.DEFAULTS (a test checks
 #: it): the monitor must not import torch for two numbers.
 NETWORK_DEFAULTS = {'flock2d': (5.0, 6), 'boids3d': (2.0, 6)}
+#: (d_cr, k) for a scenario of one's own: core.policy.PolicyConfig's defaults (set d_cr and k to
+#: the policy's; the launcher does).
+OTHER_NETWORK_DEFAULTS = (5.0, 6)
+
+
+def network_defaults(scenario) -> Tuple[float, int]:
+    """(d_cr, k) the monitor draws with when not given: the paper's for its two scenarios."""
+    spec = get_scenario(scenario)
+    return NETWORK_DEFAULTS[spec.name] if spec.shipped else OTHER_NETWORK_DEFAULTS
+
 
 #: Health names and their one-letter codes in the tick message.
 HEALTH = ('ok', 'warn', 'error', 'stale', 'lost', 'unheard')
@@ -202,7 +213,7 @@ def swarm_figures(frame: np.ndarray, p: int) -> Dict[str, Optional[float]]:
     norms = np.linalg.norm(direction, axis=-1, keepdims=True)
     units = np.divide(direction, norms, out=np.zeros_like(direction), where=norms > 0)
     return {
-        'avd': float(avd(direction)),
+        'avd': float(avd(direction)) if direction.shape[1] else None,  # a position state has no direction
         'amd': float(amd(pos)),
         'nnd': float(gaps.min()),
         'polarisation': float(np.linalg.norm(units.mean(axis=0))),

@@ -29,13 +29,15 @@ __all__ = ['FrameCollector', 'swarm_metrics']
 
 
 def swarm_metrics(frame: np.ndarray, scenario: str) -> Tuple[float, float]:
-    """(avd, amd) of one frame ``[n, d]``: avd over the velocities (flock2d) or unit headings
-    (boids3d, heading alignment), amd over the positions. NaN for fewer than 2 robots."""
+    """(avd, amd) of one frame ``[n, d]``: avd over the velocities (``position_velocity``) or
+    unit headings (``position_heading``, heading alignment), NaN for a ``position`` state (it
+    holds no velocity); amd over the positions. NaN for fewer than 2 robots."""
     spec = get_scenario(scenario)
     if frame.shape[0] < 2:
         return math.nan, math.nan
     p = spec.position_dim
-    return float(avd(frame[:, p:])), float(amd(frame[:, :p]))
+    spread = float(avd(frame[:, p:])) if spec.state_dim > p else math.nan
+    return spread, float(amd(frame[:, :p]))
 
 
 class FrameCollector:

@@ -11,23 +11,27 @@ and the three vectors of the message that carry it (position ``[3]``, orientatio
 (:mod:`knode_swarm_ros.nodes.common.conversions`, also their serialized fast path) and the ROS-free bag
 writer (:func:`knode_swarm_ros.bag.odometry_message`) both call them, so there is one mapping.
 
-=========  ===================================  ==========================================================
-scenario   state entry                          Odometry field
-=========  ===================================  ==========================================================
-flock2d    px, py                               pose.position.x, .y (z = 0)
-flock2d    vx, vy                               twist.linear (child frame); published with the identity
-                                                orientation, so the child frame is parallel to the world
-                                                frame and twist.linear = (vx, vy, 0) exactly
-boids3d    px, py, pz                           pose.position
-boids3d    hx, hy, hz (unit heading)            pose.orientation = the rotation taking +x onto h
-                                                (:mod:`.orientation`)
-boids3d    (not part of z)                      twist.linear = the last applied velocity in the child
-                                                frame (informative; about (|v|, 0, 0))
-=========  ===================================  ==========================================================
+The mapping follows the scenario's kind (its ``state`` and ``dimensions``), never its name; a 2D
+state leaves the third axis zero (the robots move in the plane z = 0 of the world frame):
 
-Why the identity orientation for flock2d: a flock2d robot is a holonomic point mass (a double
-integrator) with no heading of its own, so the one REP 105 pose it can honestly report is a
-body that does not turn. Its twist is then the world velocity bit for bit, which keeps the
+==================  ===============================  ================================================
+state               state entry                      Odometry field
+==================  ===============================  ================================================
+every kind          px, py [, pz]                    pose.position (z = 0 in 2D)
+position            (nothing more)                   identity orientation, zero twist: the pose only
+position_velocity   vx, vy [, vz]                    twist.linear (child frame); published with the
+                                                     identity orientation, so the child frame is
+                                                     parallel to the world frame and twist.linear =
+                                                     (vx, vy, vz or 0) exactly (flock2d)
+position_heading    hx, hy [, hz] (unit heading)     pose.orientation = the rotation taking +x onto
+                                                     h (:mod:`.orientation`; a yaw in 2D) (boids3d)
+position_heading    (not part of z)                  twist.linear = the last applied velocity in the
+                                                     child frame (informative; about (|v|, 0, 0))
+==================  ===============================  ================================================
+
+Why the identity orientation without a heading in the state: such a robot is a holonomic point
+mass (a double integrator, or a first-order point) with no heading of its own, so the one REP 105
+pose it can honestly report is a body that does not turn. Its twist is then the world velocity bit for bit, which keeps the
 lockstep runs equal to the offline rollout bit for bit (a rotation and its inverse would
 change the last bit of some velocities). Decoding does not rely on it: a foreign robot that
 reports its real yaw and a body-frame twist decodes to the same world velocity
@@ -107,18 +111,27 @@ def state_to_fields(
 ) -> Tuple[Tuple[float, float, float], Tuple[float, float, float, float], Tuple[float, float, float]]:
     """(position, orientation (x, y, z, w), twist.linear in the child frame) of state ``z [d]``.
 
-    ``velocity [3]`` (boids3d only, optional: the world-frame velocity applied last) fills
-    twist.linear, rotated into the child frame; without it twist.linear is zero.
+    ``velocity [m]`` (``position_heading`` only, optional: the world-frame velocity applied
+    last) fills twist.linear, rotated into the child frame; without it, and for a ``position``
+    state, twist.linear is zero.
     """
     spec = _spec(scenario)
     z = np.asarray(z, dtype=np.float64)
-    if spec.command == 'acceleration':  # flock2d [px, py, vx, vy]: see the module doc
-        return (float(z[0]), float(z[1]), 0.0), _IDENTITY, (float(z[2]), float(z[3]), 0.0)
-    q = heading_to_quaternion(z[3:6])
+    position = _padded(z[spec.position])
+    if spec.velocity is not None:  # flock2d-like: identity orientation, world velocity (module doc)
+        return position, _IDENTITY, _padded(z[spec.velocity])
+    if spec.heading is None:
+        return position, _IDENTITY, (0.0, 0.0, 0.0)
+    q = heading_to_quaternion(np.array(_padded(z[spec.heading])))
     linear = (0.0, 0.0, 0.0)
     if velocity is not None:
-        linear = tuple(float(x) for x in rotate_inverse(q, np.asarray(velocity, dtype=np.float64)[:3]))
-    return (float(z[0]), float(z[1]), float(z[2])), tuple(float(x) for x in q), linear
+        linear = tuple(float(x) for x in rotate_inverse(q, np.array(_padded(velocity))))
+    return position, tuple(float(x) for x in q), linear
+
+
+def _padded(v) -> Tuple[float, float, float]:
+    """A 2- or 3-vector as three floats (z = 0 in 2D)."""
+    return (float(v[0]), float(v[1]), float(v[2]) if len(v) > 2 else 0.0)
 
 
 def fields_to_state(
@@ -126,18 +139,21 @@ def fields_to_state(
 ) -> np.ndarray:
     """State ``z [d]`` float64 from an Odometry's position ``[3]``, orientation ``[4]`` and
     twist.linear ``[3]``, the twist read in ``twist_frame`` (``body``: REP 105, rotated by the
-    orientation into the world frame; ``world``: taken as it is). No validation: callers
-    check finiteness."""
+    orientation into the world frame; ``world``: taken as it is). A 2D state drops the z axis.
+    No validation: callers check finiteness."""
     spec = _spec(scenario)
-    if spec.command == 'acceleration':
+    dims = spec.dimensions
+    if spec.velocity is not None:
         v = linear
         if twist_frame == 'body':
             v = _rotate_one(quaternion, linear)
         elif twist_frame != 'world':
             raise ValueError(f'twist_frame must be one of {", ".join(TWIST_FRAMES)}, got {twist_frame!r}')
-        return np.array([position[0], position[1], v[0], v[1]], dtype=np.float64)
+        return np.array([*position[:dims], *v[:dims]], dtype=np.float64)
+    if spec.heading is None:
+        return np.array(position[:dims], dtype=np.float64)
     h = quaternion_to_heading(np.asarray(quaternion, dtype=np.float64))
-    return np.array([position[0], position[1], position[2], h[0], h[1], h[2]], dtype=np.float64)
+    return np.array([*position[:dims], *h[:dims]], dtype=np.float64)
 
 
 # --- unicycle robots (simulator robot_model: unicycle; agent command_interface: unicycle) -------

@@ -38,6 +38,9 @@ __all__ = [
     'SwarmSim',
     'initial_state',
     'initial_state_from_file',
+    'random_start',
+    'has_ground_truth',
+    'SPACING',
     'make_ground_truth',
     'ground_truth_variants',
     'COMMAND_OUTCOMES',
@@ -56,15 +59,29 @@ COMMAND_OUTCOMES = (
 )
 
 
+def has_ground_truth(scenario) -> bool:
+    """Whether ``scenario`` (any reference) has a ground-truth law here: the paper's two only
+    (Tanner for flock2d, boids for boids3d)."""
+    return get_scenario(scenario).shipped
+
+
 def ground_truth_variants(scenario: str) -> Tuple[str, ...]:
-    """Variants (flock2d) or presets (boids3d) of the ground truth, the paper's first."""
+    """Variants (flock2d) or presets (boids3d) of the ground truth, the paper's first; none for a
+    scenario of one's own."""
     from knode_swarm_ros.core import groundtruth
 
-    return tuple(groundtruth.presets(scenario))
+    return tuple(groundtruth.presets(scenario)) if has_ground_truth(scenario) else ()
 
 
 def _check_variant(scenario: str, variant: str) -> str:
     names = ground_truth_variants(scenario)
+    if not names:
+        if variant:
+            raise ConfigError(
+                f"parameter 'variant' = {variant!r}: scenario {get_scenario(scenario).name} has no "
+                'ground-truth law (only flock2d and boids3d have)'
+            )
+        return ''
     variant = variant or names[0]
     if variant not in names:
         raise ConfigError(
@@ -74,13 +91,34 @@ def _check_variant(scenario: str, variant: str) -> str:
     return variant
 
 
+#: Default spacing (m) of a random start without an arena: about one robot per SPACING^dimensions.
+SPACING = 1.0
+
+
+def random_start(spec: Scenario, robots: int, rng: np.random.Generator) -> np.ndarray:
+    """A random initial state ``[robots, d]`` of a scenario of one's own (no ground truth to
+    draw it from): positions uniform in the box ``[-a, a]^dimensions``, with ``a`` half the
+    arena's half width (the middle of the arena, clear of the walls), or without an arena
+    ``a = SPACING * robots^(1/dimensions) / 2`` (about one robot per ``SPACING^dimensions``);
+    velocities zero (at rest); headings uniform on the unit circle or sphere."""
+    dims = spec.dimensions
+    half = 0.5 * spec.arena if spec.arena is not None else 0.5 * SPACING * robots ** (1.0 / dims)
+    z = np.zeros((robots, spec.state_dim))
+    z[:, spec.position] = rng.uniform(-half, half, size=(robots, dims))
+    if spec.heading is not None:
+        h = rng.standard_normal((robots, dims))
+        z[:, spec.heading] = h / np.linalg.norm(h, axis=1, keepdims=True)
+    return z
+
+
 def initial_state(scenario: str, robots: int, seed: int, variant: str = ''):
     """The training density's initial condition for any number of robots.
 
-    Returns (``z0 [robots, d]``, the ground-truth swarm in that state). Equals frame 0 of
-    ``core.groundtruth.simulate(scenario, 1, robots, 1, seed, variant)``: flock2d draws
-    Tanner initial states; boids3d spawns boids and discards the first frames as the
-    dataset generator does.
+    Returns (``z0 [robots, d]``, the ground-truth swarm in that state, or None). For the paper's
+    scenarios it equals frame 0 of ``core.groundtruth.simulate(scenario, 1, robots, 1, seed,
+    variant)``: flock2d draws Tanner initial states; boids3d spawns boids and discards the first
+    frames as the dataset generator does. Any other scenario has no ground truth: a
+    :func:`random_start` drawn from ``seed``.
     """
     from knode_swarm_ros.core.groundtruth import (
         BOIDS_PRESETS,
@@ -94,7 +132,10 @@ def initial_state(scenario: str, robots: int, seed: int, variant: str = ''):
     if robots < 1:
         raise ConfigError(f"parameter 'robots' must be >= 1, got {robots}")
     rng = np.random.default_rng(seed)
-    if scenario == 'flock2d':
+    spec = get_scenario(scenario)
+    if not has_ground_truth(spec):
+        return random_start(spec, robots, rng), None
+    if spec.name == 'flock2d':
         swarm = TannerSwarm(tanner.initial_states(rng, 1, robots, variant), variant)
     else:
         swarm = BoidsSwarm.spawn(rng, 1, robots, BOIDS_PRESETS[variant])
@@ -135,14 +176,23 @@ def make_ground_truth(scenario: str, z0: np.ndarray, variant: str = '', dt: Opti
     """A ground-truth stepper (``step() -> [1, n, d]``) starting from ``z0 [n, d]``.
 
     boids3d states carry no speed: the boids start at the spawn speed (see BoidsSwarm).
+
+    Raises:
+        ConfigError: a scenario without a ground-truth law (:func:`has_ground_truth`), a bad
+            variant, or ``dt`` other than the law's.
     """
     from knode_swarm_ros.core.groundtruth import BOIDS_PRESETS, BoidsSwarm, TannerSwarm
 
-    variant = _check_variant(scenario, variant)
     spec = get_scenario(scenario)
+    if not has_ground_truth(spec):
+        raise ConfigError(
+            f"parameter 'ground_truth': scenario {spec.name} has no ground-truth law (only flock2d "
+            'and boids3d have); drive it with agents running a policy'
+        )
+    variant = _check_variant(scenario, variant)
     if dt is not None and not np.isclose(dt, spec.dt, rtol=1e-9, atol=0):
         raise ConfigError(f"parameter 'dt' = {dt:g}: the {scenario} ground truth steps at dt = {spec.dt:g}")
-    if scenario == 'flock2d':
+    if spec.name == 'flock2d':
         return TannerSwarm(np.asarray(z0)[None], variant)
     return BoidsSwarm.from_observation(np.asarray(z0)[None], BOIDS_PRESETS[variant])
 
@@ -166,7 +216,7 @@ class SwarmSim:
     """n robots, their states and commands (see the module doc).
 
     Args:
-        scenario: scenario name.
+        scenario: any scenario reference (a shipped name, a YAML file, the JSON object).
         z0: ``[n, d]`` initial states of robots 0 .. n-1.
         dt: seconds per step.
         mode: ``lockstep`` or ``realtime``.

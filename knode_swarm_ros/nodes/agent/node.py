@@ -138,7 +138,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.grace_timer = None if self._grace is None else self._grace.timer
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
         self.get_logger().info(
-            f'robot {robot_id} of {len(ids)} ({policy.scenario}, {mode}): policy {policy.path} on {policy.backend} '
+            f'robot {robot_id} of {len(ids)} ({self.spec.name}, {mode}): policy {policy.path} on {policy.backend} '
             f'(k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, dt={policy.dt:g}, '
             f'limit={self.logic.limit}); publishing {self.cmd_pub.topic_name}'
         )

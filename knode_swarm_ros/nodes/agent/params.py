@@ -18,7 +18,7 @@ from knode_swarm_ros.logic.agent.control_period import RATE_CHECKS
 from knode_swarm_ros.logic.agent.realtime_tick import TICK_ON
 from knode_swarm_ros.logic.common import MODES, robot_id_list
 from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES
-from knode_swarm_ros.nodes.common.params import declare, declare_int_array
+from knode_swarm_ros.nodes.common.params import SCENARIO_HELP, declare, declare_int_array, scenario_parameter
 
 __all__ = ['AgentParams', 'declare_agent_parameters']
 
@@ -98,12 +98,13 @@ def declare_agent_parameters(node) -> AgentParams:
             int_range=(1, 10_000),
         ),
         robot_ids=declare_int_array(node, 'robot_ids', "the swarm's robot ids (overrides 'robots')"),
-        scenario=d(
-            node,
-            'scenario',
-            '',
-            "flock2d or boids3d (empty: the policy's; with policy empty too: flock2d)",
-            choices=('', 'flock2d', 'boids3d'),
+        scenario=scenario_parameter(
+            d(
+                node,
+                'scenario',
+                '',
+                SCENARIO_HELP + " (empty: the policy's; with policy empty too: flock2d)",
+            )
         ),
         policy=d(
             node,

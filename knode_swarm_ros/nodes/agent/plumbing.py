@@ -49,9 +49,15 @@ def load_agent_policy(
     from knode_swarm_ros.core.policy_runtime import (
         load_runtime,  # imports torch only for the TorchScript backend
     )
+    from knode_swarm_ros.core.scenarios import get_scenario
 
     if not path:
         scenario = scenario or 'flock2d'
+        if not get_scenario(scenario).shipped:
+            raise ConfigError(
+                f"parameter 'policy' is empty, but no policy is shipped for scenario "
+                f'{get_scenario(scenario).name}; pass -p policy:=/path/to/policy.pt'
+            )
         try:
             path = str(
                 shipped_policy_for_rate(scenario, control_rate)[0]

@@ -159,7 +159,7 @@ class AgentsNode(Node):
         self._publish_status()
         # last: this line says the node is up (tests wait for it)
         self.get_logger().info(
-            f'robots {format_ids(hosted)} ({len(hosted)} hosted) of {len(ids)} ({policy.scenario}, {mode}): '
+            f'robots {format_ids(hosted)} ({len(hosted)} hosted) of {len(ids)} ({self.spec.name}, {mode}): '
             f'policy {policy.path} on {policy.backend} (k={policy.k}, d_cr={policy.d_cr:g}, tau={policy.tau}, '
             f'dt={policy.dt:g})'
         )

@@ -4,7 +4,7 @@ State z of robot ``i`` <-> ``nav_msgs/Odometry`` on ``robot_<i>/odom`` per REP 1
 float64; ``header.frame_id`` = the world frame, ``world`` by default; ``child_frame_id`` =
 ``robot_<i>/base_link`` by default; ``header.stamp`` = the state's time): pose in the world
 frame, twist in the child frame. The field-by-field mapping (which state entry goes where, and
-why a flock2d robot reports the identity orientation) is the ROS-free
+why a robot without a heading in its state reports the identity orientation) is the ROS-free
 :mod:`knode_swarm_ros.logic.contract.rep105`, shared with the bag writer; this module only moves
 its vectors into and out of messages. Decoding reads the twist in the child frame (``body``,
 REP 105) unless the caller says the publisher puts it in the world frame (``twist_frame``).
@@ -26,9 +26,10 @@ only the alignment padding, which rclpy leaves uninitialised, is zero here), and
 conversion of every Odometry (with its two 36-entry covariances) to and from a Python object,
 which measured about 3x the CPU of the rest of a message's delivery.
 
-Commands: flock2d accelerations in ``geometry_msgs/AccelStamped.accel.linear.x, .y``
-(``robot_<i>/cmd_accel``), boids3d velocities in ``geometry_msgs/TwistStamped.twist.linear.x,
-.y, .z`` (``robot_<i>/cmd_vel``); ``header.stamp`` = the stamp of the robot's own state the
+Commands follow the scenario's ``command``: accelerations in
+``geometry_msgs/AccelStamped.accel.linear`` (``robot_<i>/cmd_accel``), velocities in
+``geometry_msgs/TwistStamped.twist.linear`` (``robot_<i>/cmd_vel``); x, y, and z in 3D (a 2D
+command leaves z zero and ignores it on receipt); angular zero; ``header.stamp`` = the stamp of the robot's own state the
 command was computed from, ``header.frame_id = 'world'``.
 """
 
@@ -103,7 +104,7 @@ def state_to_odom(
 ) -> Odometry:
     """Odometry of robot ``robot``'s state ``z [d]`` at stamp ``ns`` (see :mod:`.odom_mapping`).
 
-    ``velocity`` (boids3d only, optional, world frame) fills twist.linear, for information;
+    ``velocity`` (``position_heading`` only, optional, world frame) fills twist.linear, for information;
     ``child_frame_id`` defaults to ``robot_<robot>/base_link``.
     """
     position, quaternion, linear = state_to_fields(z, _spec(scenario), velocity)
@@ -254,18 +255,22 @@ def command_msg_type(scenario: ScenarioLike):
 def command_to_msg(ns: int, u, scenario: ScenarioLike):
     """Command message for ``u [m]`` echoing the state stamp ``ns``."""
     spec = _spec(scenario)
-    u = np.asarray(u, dtype=np.float64)
     if spec.command == 'acceleration':
         msg = AccelStamped()
         vec = msg.accel.linear
-        vec.x, vec.y = float(u[0]), float(u[1])
     else:
         msg = TwistStamped()
         vec = msg.twist.linear
-        vec.x, vec.y, vec.z = float(u[0]), float(u[1]), float(u[2])
+    vec.x, vec.y, vec.z = _command_linear(u)
     msg.header.stamp = time_msg(ns)
     msg.header.frame_id = WORLD_FRAME
     return msg
+
+
+def _command_linear(u) -> Tuple[float, float, float]:
+    """``u [m]`` (2 or 3 entries) as the three floats of ``linear`` (z = 0 in 2D)."""
+    u = np.asarray(u, dtype=np.float64)
+    return float(u[0]), float(u[1]), float(u[2]) if u.shape[0] > 2 else 0.0
 
 
 def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
@@ -273,9 +278,7 @@ def command_to_cdr(ns: int, u, scenario: ScenarioLike) -> bytes:
     process publishes 100s of commands a step: no message objects)."""
     if ns < 0:
         raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
-    spec = _spec(scenario)
-    u = np.asarray(u, dtype=np.float64)
-    linear = (float(u[0]), float(u[1]), 0.0 if spec.command == 'acceleration' else float(u[2]))
+    linear = _command_linear(u)
     buf = bytearray(CDR_LE)
     buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
     cdr_put_string(buf, WORLD_FRAME)
@@ -292,8 +295,8 @@ _COMMAND_ALIGN = {1: 8, 3: 8, 7: 4, 9: 4, 11: 4}
 
 
 def command_from_cdr(data: bytes, scenario: ScenarioLike) -> Tuple[int, np.ndarray]:
-    """(stamp ns, ``u [m]`` float64) of a serialized AccelStamped (acceleration commands: linear
-    x, y) or TwistStamped (velocity commands: linear x, y, z): :func:`msg_to_command` of the
+    """(stamp ns, ``u [m]`` float64) of a serialized AccelStamped (acceleration commands) or
+    TwistStamped (velocity commands), ``u`` = linear x, y (and z in 3D): :func:`msg_to_command` of the
     message rclpy would deserialize, read without building it (the simulator takes 100s a step).
 
     Raises:
@@ -341,12 +344,8 @@ def string_to_cdr(text: str) -> bytes:
 
 
 def msg_to_command(msg, scenario: ScenarioLike) -> Tuple[int, np.ndarray]:
-    """(stamp ns, ``u [m]`` float64) of a command message."""
+    """(stamp ns, ``u [m]`` float64) of a command message: linear x, y (and z in 3D)."""
     spec = _spec(scenario)
-    if spec.command == 'acceleration':
-        vec = msg.accel.linear
-        u = np.array([vec.x, vec.y], dtype=np.float64)
-    else:
-        vec = msg.twist.linear
-        u = np.array([vec.x, vec.y, vec.z], dtype=np.float64)
+    vec = msg.accel.linear if spec.command == 'acceleration' else msg.twist.linear
+    u = np.array([vec.x, vec.y, vec.z][: spec.command_dim], dtype=np.float64)
     return time_ns(msg.header.stamp), u

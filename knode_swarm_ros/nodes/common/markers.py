@@ -2,7 +2,8 @@
 monitor's ``monitor/markers``, one drawing for both.
 
 Namespaces: ``robots`` (one sphere list, one point per robot, coloured by health when given),
-``headings`` (one arrow per robot along its velocity, flock2d, or heading, boids3d), ``links`` (a
+``headings`` (one arrow per robot along the velocity or the heading its state holds; none for a
+``position`` state), ``links`` (a
 line list: the given pairs, else every pair of robots within d_cr of each other; none when d_cr
 is 0) and, when given, ``trails`` (one line strip per robot). Frame ``world``.
 """
@@ -80,8 +81,8 @@ def swarm_markers(
         robots.colors = [_rgba(HEALTH_RGBA[h]) for h in health]
     out.markers.append(robots)
 
-    length = 0.5 if spec.command == 'velocity' else 0.25  # boids: unit heading; flock: velocity scaled
-    for i, (x, v) in enumerate(zip(pos, direction)):
+    length = 0.5 if spec.heading is not None else 0.25  # a unit heading; a velocity scaled
+    for i, (x, v) in enumerate(zip(pos, direction) if direction.shape[1] else ()):
         arrow = _marker('headings', i, Marker.ARROW, stamp, (0.9, 0.3, 0.1, 1.0))
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.05, 0.1, 0.1
         arrow.points = [_point(x), _point(x + length * v)]

@@ -20,7 +20,16 @@ from rclpy.parameter import Parameter
 
 from knode_swarm_ros.logic.common import ConfigError
 
-__all__ = ['declare', 'declare_int_array', 'node_name_from_args', 'check_overrides', 'shadowed_overrides']
+__all__ = [
+    'declare',
+    'declare_scenario',
+    'scenario_parameter',
+    'SCENARIO_HELP',
+    'declare_int_array',
+    'node_name_from_args',
+    'check_overrides',
+    'shadowed_overrides',
+]
 
 #: Parameters every rclpy node has without declaring them here.
 _BUILTIN = ('use_sim_time', 'start_type_description_service')
@@ -83,6 +92,33 @@ def declare(
     if choices is not None and value not in choices:
         raise ConfigError(f'parameter {name!r} = {value!r} is not one of {", ".join(choices)}')
     return value
+
+
+#: What every node's ``scenario`` parameter says of its value.
+SCENARIO_HELP = 'flock2d, boids3d, a scenario file (.yaml) or the scenario as a JSON object'
+
+
+def scenario_parameter(value: str, name: str = 'scenario') -> str:
+    """The canonical reference (:func:`knode_swarm_ros.core.scenarios.scenario_ref`) of a
+    scenario parameter's value ('' stays '': unset).
+
+    Raises:
+        ConfigError: an unknown name, a missing or invalid file; the message names the parameter.
+    """
+    from knode_swarm_ros.core.scenarios import ScenarioError, parse_scenario_argument
+
+    if not value:
+        return ''
+    try:
+        return parse_scenario_argument(value)
+    except ScenarioError as exc:
+        raise ConfigError(f'parameter {name!r} = {value!r}: {exc}') from None
+
+
+def declare_scenario(node, default: str, description: str = SCENARIO_HELP) -> str:
+    """Declare the ``scenario`` parameter (a shipped name, a scenario file or the JSON object)
+    and return its canonical reference (:func:`scenario_parameter`)."""
+    return scenario_parameter(declare(node, 'scenario', default, description))
 
 
 def declare_int_array(node, name: str, description: str) -> List[int]:

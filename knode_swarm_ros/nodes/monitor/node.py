@@ -28,10 +28,10 @@ from knode_swarm_ros.logic.common import ConfigError, odom_topic, parse_robot_fr
 from knode_swarm_ros.logic.monitor import (
     METRICS_TOPIC,
     MONITOR_MARKERS_TOPIC,
-    NETWORK_DEFAULTS,
     SwarmWatch,
     Throttle,
     hello_message,
+    network_defaults,
     tick_message,
     view_scale,
 )
@@ -39,7 +39,7 @@ from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES, CdrError, odom_from_cdr
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
-from knode_swarm_ros.nodes.common.params import check_overrides, declare
+from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
 
 __all__ = ['MonitorNode', 'main']
 
@@ -51,11 +51,9 @@ class MonitorNode(Node):
 
     def __init__(self, node_name: str = 'monitor', **kwargs):
         super().__init__(node_name, **kwargs)
-        self.scenario = declare(
-            self, 'scenario', 'flock2d', 'flock2d or boids3d', choices=('flock2d', 'boids3d')
-        )
+        self.scenario = declare_scenario(self, 'flock2d')
         robots = declare(self, 'robots', 10, 'number of robots, ids 0 .. robots-1', int_range=(1, 10_000))
-        default_d_cr, default_k = NETWORK_DEFAULTS[self.scenario]
+        default_d_cr, default_k = network_defaults(self.scenario)
         d_cr = declare(
             self,
             'd_cr',
@@ -133,7 +131,7 @@ class MonitorNode(Node):
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, qos.DIAGNOSTICS)
         self.create_timer(1.0 / rate, self._on_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         where = f'; page at http://{self.host}:{self.web.port}/' if self.web else ''
-        self.get_logger().info(f'watching {robots} robots ({self.scenario}){where}')
+        self.get_logger().info(f'watching {robots} robots ({self.spec.name}){where}')
 
     def _on_odom(self, robot: int, data: bytes) -> None:
         # Only the newest message is kept; it is decoded at the next tick: the monitor's work

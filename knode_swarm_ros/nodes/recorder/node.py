@@ -43,7 +43,7 @@ from knode_swarm_ros.logic.reporting import Throttle
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES, CdrError, odom_from_cdr
 from knode_swarm_ros.nodes.common.executor import run_node
-from knode_swarm_ros.nodes.common.params import check_overrides, declare
+from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
 
 __all__ = ['RecorderNode', 'main']
 
@@ -53,9 +53,7 @@ class RecorderNode(Node):
 
     def __init__(self, node_name: str = 'recorder', **kwargs):
         super().__init__(node_name, **kwargs)
-        self.scenario = declare(
-            self, 'scenario', 'flock2d', 'flock2d or boids3d', choices=('flock2d', 'boids3d')
-        )
+        self.scenario = declare_scenario(self, 'flock2d')
         robots = declare(self, 'robots', 10, 'number of robots, ids 0 .. robots-1', int_range=(1, 10_000))
         self.output = declare(self, 'output', '', 'trajectory file to write (.npz), required')
         spec = get_scenario(self.scenario)
@@ -155,7 +153,7 @@ class RecorderNode(Node):
         ]  # serialized bytes: see conversions.odom_from_cdr
         self.create_subscription(String, SIMULATOR_STATUS_TOPIC, self._on_sim_status, qos.STATUS)
         self.create_timer(0.5, self._on_timer, clock=wall)
-        self.get_logger().info(f'recording {robots} robots ({self.scenario}) to {self.output}')
+        self.get_logger().info(f'recording {robots} robots ({spec.name}) to {self.output}')
         self._publish_status()
 
     # --- callbacks -----------------------------------------------------------------

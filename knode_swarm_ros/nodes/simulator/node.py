@@ -44,6 +44,7 @@ from knode_swarm_ros.logic.reporting import write_json_report
 from knode_swarm_ros.logic.simulator.run_phases import LifecycleConfig, SimLifecycle
 from knode_swarm_ros.logic.simulator.swarm_sim import (
     SwarmSim,
+    has_ground_truth,
     initial_state,
     initial_state_from_file,
     make_ground_truth,
@@ -57,7 +58,7 @@ from knode_swarm_ros.nodes.common.conversions import (
 )
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
-from knode_swarm_ros.nodes.common.params import check_overrides, declare
+from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
 
 from .robot_model import declare_robot_model
 
@@ -72,7 +73,7 @@ class SimulatorNode(Node):
 
     def __init__(self, node_name: str = 'simulator', **kwargs):
         super().__init__(node_name, **kwargs)
-        scenario = declare(self, 'scenario', 'flock2d', 'flock2d or boids3d', choices=('flock2d', 'boids3d'))
+        scenario = declare_scenario(self, 'flock2d')
         robots = declare(
             self,
             'robots',
@@ -103,7 +104,11 @@ class SimulatorNode(Node):
             or spec.dt
         )
         seed = declare(
-            self, 'seed', 0, 'seed of the initial state (ignored with init)', int_range=(0, 2**31 - 1)
+            self,
+            'seed',
+            0,
+            'seed of the initial state (ignored with init; a scenario of your own: swarm_sim.random_start)',
+            int_range=(0, 2**31 - 1),
         )
         init = declare(self, 'init', '', 'initial state: frame 0 of FILE.npz[:TRAJ] (empty: drawn from seed)')
         variant = declare(
@@ -111,7 +116,8 @@ class SimulatorNode(Node):
             'variant',
             '',
             'ground-truth variant (flock2d: paper, gym_flock; boids3d: paper, '
-            'published); also shapes the seeded initial state (empty: paper)',
+            'published; none for a scenario of your own); also shapes the seeded initial state '
+            '(empty: paper)',
         )
         ground_truth = declare(
             self,
@@ -269,7 +275,7 @@ class SimulatorNode(Node):
             'steps': self.steps,
             'publish_every': self.publish_every,
             'ground_truth': ground_truth,
-            'variant': variant or 'paper',
+            'variant': variant or ('paper' if has_ground_truth(spec) else ''),
             'robot_model': robot_model,
             **origin,
         }
@@ -343,7 +349,7 @@ class SimulatorNode(Node):
         )
         kind = f'{mode} (ground truth {self.meta["variant"]})' if gt else mode
         self.get_logger().info(
-            f'{self.n} robots, {scenario}, {kind}, dt {dt:g} s, {self.steps or "unlimited"} steps, '
+            f'{self.n} robots, {spec.name}, {kind}, dt {dt:g} s, {self.steps or "unlimited"} steps, '
             f'initial state from {source}; waiting for {waiting}'
         )
         self.life.publish()

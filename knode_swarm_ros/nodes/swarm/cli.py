@@ -23,7 +23,11 @@ def build_parser() -> argparse.ArgumentParser:
         description='Run a swarm of learnt controllers on this machine: the simulator, one agent '
         'process per robot and the recorder, on a fresh ROS domain with localhost-only discovery.',
     )
-    p.add_argument('--scenario', choices=('flock2d', 'boids3d'), help="default: the policy's, else flock2d")
+    p.add_argument(
+        '--scenario',
+        metavar='NAME|FILE.yaml',
+        help="flock2d, boids3d or a scenario file (docs/scenarios.md); default: the policy's, else flock2d",
+    )
     p.add_argument('--robots', type=int, help='number of robots (default: 10, or as many as --init has)')
     p.add_argument(
         '--steps', type=int, default=2000, help='steps of dt to simulate (0: until Ctrl-C); default 2000'
@@ -40,9 +44,17 @@ def build_parser() -> argparse.ArgumentParser:
         default='auto',
         help="agents' policy_runtime (auto: the ONNX twin on onnxruntime when it exists); default auto",
     )
-    p.add_argument('--init', metavar='FILE.npz[:TRAJ]', help='initial state: frame 0 of a trajectory file')
     p.add_argument(
-        '--seed', type=int, default=0, help='seed of the initial state (without --init); default 0'
+        '--init',
+        metavar='FILE.npz[:TRAJ]',
+        help='initial state: frame 0 of a trajectory file of the scenario (e.g. training.import_tracks)',
+    )
+    p.add_argument(
+        '--seed',
+        type=int,
+        default=0,
+        help='seed of the initial state (without --init; a scenario of your own starts at random in a '
+        'box, docs/scenarios.md); default 0',
     )
     p.add_argument('--record', metavar='OUT.npz', required=True, help='trajectory file to write')
     p.add_argument(
@@ -54,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         '--ground-truth',
         action='store_true',
-        help='the simulator drives the robots with the Tanner / boids controller; no agents',
+        help='the simulator drives the robots with the Tanner / boids controller (flock2d, boids3d only); '
+        'no agents',
     )
     p.add_argument('--variant', default='', help='ground-truth variant / preset (default: paper)')
     p.add_argument(

@@ -28,6 +28,7 @@ __all__ = [
     'AGENT_MB',
     'NODE_MB',
     'MONITOR_PORT',
+    'scenario_name',
 ]
 
 DOMAIN_RANGE = (30, 101)  # valid ids with the default port mapping, away from the default 0
@@ -85,6 +86,13 @@ class Plan:
     keep_logs: bool = False
     monitor_port: Optional[int] = None  # None: no monitor; 0: any free port
     monitor_host: str = '127.0.0.1'
+
+
+def scenario_name(scenario: str) -> str:
+    """The name of a scenario reference, for messages (a custom one's reference is its JSON)."""
+    from knode_swarm_ros.core.scenarios import get_scenario
+
+    return get_scenario(scenario).name
 
 
 def _check_output_folder(option: str, given: str, folder: Path) -> None:
@@ -146,20 +154,39 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise ConfigError('--monitor-host needs --monitor')
 
 
+def _scenario_argument(args: argparse.Namespace) -> str:
+    """``--scenario`` as a canonical reference ('' when not given)."""
+    from knode_swarm_ros.core.scenarios import ScenarioError, parse_scenario_argument
+
+    if not args.scenario:
+        return ''
+    try:
+        return parse_scenario_argument(args.scenario)
+    except ScenarioError as exc:
+        raise ConfigError(f'--scenario {args.scenario}: {exc}') from None
+
+
 def _policy(args: argparse.Namespace):
-    """``(scenario, dt, d_cr, policy path or None, metadata)`` of the run."""
+    """``(scenario, dt, d_cr, policy path or None, metadata)`` of the run; ``scenario`` is the
+    canonical reference (a shipped name, else the JSON object: the policy's own)."""
     from knode_swarm_ros.core.scenarios import get_scenario
 
-    scenario = args.scenario
+    scenario = _scenario_argument(args)
     if args.ground_truth:
         if args.policy:
             raise ConfigError(
                 '--policy and --ground-truth exclude each other (no agents run with --ground-truth)'
             )
         scenario = scenario or 'flock2d'
+        spec = get_scenario(scenario)
+        if not spec.shipped:  # the ground truths are the paper's two laws
+            raise ConfigError(
+                f'--ground-truth: scenario {spec.name} has no ground-truth law (only flock2d and '
+                'boids3d have); run a policy with --policy'
+            )
         from knode_swarm_ros.core.policy import DEFAULTS
 
-        return scenario, get_scenario(scenario).dt, float(DEFAULTS[scenario]['d_cr']), None, {}
+        return scenario, spec.dt, float(DEFAULTS[spec.name]['d_cr']), None, {}
     from knode_swarm_ros.core.policy_meta import PolicyError, shipped_policy_path
     from knode_swarm_ros.core.policy_runtime import (
         load_runtime,  # the agents' backend: checks an ONNX twin up front
@@ -168,6 +195,11 @@ def _policy(args: argparse.Namespace):
     try:
         if args.policy:
             policy_path = args.policy
+        elif scenario and not get_scenario(scenario).shipped:
+            raise ConfigError(
+                f'--scenario {args.scenario}: no policy is shipped for a scenario of your own; '
+                'pass --policy RUN/policy.pt (its knode.json carries the scenario)'
+            )
         elif args.mode == 'realtime':  # the shipped policy trained for --rate, if there is one
             from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
 
@@ -178,8 +210,11 @@ def _policy(args: argparse.Namespace):
     except PolicyError as exc:
         hint = '' if args.policy else ' (pass --policy FILE.pt)'
         raise ConfigError(f'--policy (--policy-runtime {args.policy_runtime}): {exc}{hint}') from None
-    if scenario and policy.scenario != scenario:
-        raise ConfigError(f'--scenario {scenario} but the policy {policy_path} is for {policy.scenario}')
+    if scenario and get_scenario(policy.scenario) != get_scenario(scenario):
+        raise ConfigError(
+            f'--scenario {args.scenario} but the policy {policy_path} is for '
+            f'{get_scenario(policy.scenario).name} ({policy.scenario})'
+        )
     return policy.scenario, policy.dt, policy.d_cr, str(Path(policy_path).resolve()), dict(policy.meta)
 
 
@@ -248,17 +283,22 @@ def plan_run(args: argparse.Namespace) -> Plan:
                 f'with --agents-per-process {args.agents_per_process}'
             )
         per_process = 1
-    robot_params = robot_model.robot_model_parameters(args, scenario, per_process)
+    robot_params = robot_model.robot_model_parameters(args, scenario_name(scenario), per_process)
     hosting.check_netns(args.netns)
     if not args.ground_truth:
         _check_memory(robots, per_process)
     if args.variant:
-        from knode_swarm_ros.core import groundtruth
+        from knode_swarm_ros.logic.simulator.swarm_sim import ground_truth_variants
 
-        if args.variant not in groundtruth.presets(scenario):
+        known = ground_truth_variants(scenario)
+        if args.variant not in known:
             raise ConfigError(
-                f'--variant {args.variant!r}: known {scenario} variants are '
-                f'{", ".join(groundtruth.presets(scenario))}'
+                f'--variant {args.variant!r}: '
+                + (
+                    f'known {scenario} variants are {", ".join(known)}'
+                    if known
+                    else f'scenario {scenario_name(scenario)} has no ground-truth law, so no variants'
+                )
             )
     claim = None
     if args.domain_id is None:  # a free one: another swarm on this machine may hold one

@@ -1,6 +1,6 @@
 """The launcher's closing summary: the recording's metrics, the simulator's figures and a PNG.
 
-For a run of a learnt policy the ground-truth swarm from the recording's first frame
+For a run of a learnt policy in a shipped scenario the ground-truth swarm from the recording's first frame
 (:func:`knode_swarm_ros.core.groundtruth.follow`: Tanner's law, or the boids at their spawn
 speed) is summarised and drawn beside it, so that one sees at a glance how close the learnt
 swarm comes to the one it learnt from.
@@ -52,13 +52,13 @@ def summarise(plan) -> Optional[Dict]:
         'incomplete_frames': data.meta.get('incomplete_frames'),
         'interrupted': data.meta.get('interrupted'),
     }
-    which = 'velocity' if data.scenario == 'flock2d' else 'heading'
+    which = _direction_word(data.spec)
     _say(
         f'recorded {plan.record}: {info["frames"]} frames x {info["robots"]} robots, dt {data.dt:g} s'
         f'{" (interrupted)" if info["interrupted"] else ""}'
     )
     _say(
-        f'avd ({which} difference): {info["avd_start"]:.4f} at start, {info["avd_end"]:.4f} at the end '
+        f'avd ({which}): {info["avd_start"]:.4f} at start, {info["avd_end"]:.4f} at the end '
         f'(mean of the last 10%: {info["avd_last10pct"]:.4f})'
     )
     _say(
@@ -103,13 +103,20 @@ def summarise(plan) -> Optional[Dict]:
             plan.figure,
             states,
             data.dt,
-            data.scenario,
+            data.spec,
             metrics,
-            f'{data.scenario}, {states.shape[1]} robots, {plan.mode}',
+            f'{data.spec.name}, {states.shape[1]} robots, {plan.mode}',
             truth,
             truth_metrics,
         )
     return info
+
+
+def _direction_word(spec) -> str:
+    """What avd measures for the scenario's state (NaN for a position-only state)."""
+    if spec.velocity is not None:
+        return 'velocity difference'
+    return 'heading difference' if spec.heading is not None else 'none: the state holds no velocity'
 
 
 def _variant(plan) -> str:
@@ -122,8 +129,9 @@ def _ground_truth(plan, states, data, swarm_metrics):
     import numpy as np
 
     from knode_swarm_ros.core.groundtruth import follow
+    from knode_swarm_ros.logic.simulator.swarm_sim import has_ground_truth
 
-    if getattr(plan, 'ground_truth', False):
+    if not has_ground_truth(data.spec) or getattr(plan, 'ground_truth', False):
         return None, None
     try:
         truth = follow(data.scenario, states[0], states.shape[0], float(data.dt), _variant(plan))
@@ -133,8 +141,8 @@ def _ground_truth(plan, states, data, swarm_metrics):
     return truth, np.array([swarm_metrics(f, data.scenario) for f in truth])
 
 
-def _draw_trajectories(ax, states, scenario: str, title: str) -> None:
-    # one grey path per robot: a boids3d swarm of colours is a tangle; start and end say the rest
+def _draw_trajectories(ax, states, spec, title: str) -> None:
+    # one grey path per robot: a swarm of colours is a tangle; start and end say the rest
     for i in range(states.shape[1]):
         ax.plot(states[:, i, 0], states[:, i, 1], lw=0.6, color='0.6')
     ax.scatter(states[0, :, 0], states[0, :, 1], c='k', s=10, marker='o', label='start')
@@ -143,15 +151,19 @@ def _draw_trajectories(ax, states, scenario: str, title: str) -> None:
     ax.set_ylabel('y [m]')
     ax.set_aspect('equal', adjustable='datalim')
     ax.legend(loc='best', fontsize=8)
-    ax.set_title(title + (' (x-y projection)' if scenario == 'boids3d' else ''))
+    ax.set_title(title + (' (x-y projection)' if spec.dimensions == 3 else ''))
 
 
 def write_figure(
-    path: Path, states, dt: float, scenario: str, metrics, title: str, truth=None, truth_metrics=None
+    path: Path, states, dt: float, scenario, metrics, title: str, truth=None, truth_metrics=None
 ) -> bool:
     """Trajectories and avd/amd over time as a PNG (matplotlib is imported only here); with
     ``truth [T, n, d]`` and its ``truth_metrics [T, 2]`` the ground-truth swarm from the same
-    start gets its own trajectory panel and its curves beside the run's."""
+    start gets its own trajectory panel and its curves beside the run's. ``scenario``: any
+    scenario reference."""
+    from knode_swarm_ros.core.scenarios import get_scenario
+
+    spec = get_scenario(scenario)
     try:
         import matplotlib
 
@@ -165,9 +177,9 @@ def write_figure(
     t = np.arange(states.shape[0]) * dt
     panels = 3 if truth is None else 4
     fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 4.5))
-    _draw_trajectories(axes[0], states, scenario, 'trajectories' if truth is None else 'learnt swarm')
+    _draw_trajectories(axes[0], states, spec, 'trajectories' if truth is None else 'learnt swarm')
     if truth is not None:
-        _draw_trajectories(axes[1], truth, scenario, 'ground truth, same start')
+        _draw_trajectories(axes[1], truth, spec, 'ground truth, same start')
         both = np.concatenate([states[..., :2].reshape(-1, 2), truth[..., :2].reshape(-1, 2)])
         both = both[np.all(np.isfinite(both), axis=1)]
         if len(both):  # one scale for both swarms, so that they compare by eye
@@ -178,9 +190,9 @@ def write_figure(
                 ax.set_xlim(lo[0] - pad, hi[0] + pad)
                 ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax_avd, ax_amd = axes[-2], axes[-1]
-    avd_unit = '[m/s]' if scenario == 'flock2d' else '(unit headings)'
+    avd_unit = '[m/s]' if spec.heading is None else '(unit headings)'
     for ax, col, name, unit in (
-        (ax_avd, 0, 'avd: ' + ('velocity' if scenario == 'flock2d' else 'heading') + ' difference', avd_unit),
+        (ax_avd, 0, 'avd: ' + _direction_word(spec), avd_unit),
         (ax_amd, 1, 'amd: nearest-neighbour distance', '[m]'),
     ):
         ax.plot(t, metrics[:, col], label='learnt' if truth is not None else None)
@@ -190,9 +202,8 @@ def write_figure(
         ax.set_xlabel('t [s]')
         ax.set_ylabel(f'{name.split(":")[0]} {unit}')
         ax.set_title(name)
-    ax_avd.set_yscale(
-        'log'
-    )  # as in training.evaluate: the flocked state is orders of magnitude below the start
+    # log, as in training.evaluate: the flocked state is orders of magnitude below the start
+    ax_avd.set_yscale('log')
     fig.suptitle(title)
     fig.text(0.5, 0.01, CAPTION, ha='center', fontsize=9)
     fig.tight_layout(rect=(0, 0.05, 1, 1))

@@ -17,7 +17,7 @@ from knode_swarm_ros.logic.reporting import write_json_report
 from . import hosting
 from .commands import child_environment, node_commands
 from .console import say as _say
-from .plan import Plan
+from .plan import Plan, scenario_name
 from .processes import Children, Interrupted, start_child
 from .report import summarise
 from .shm import shm_cleanup, shm_snapshot
@@ -51,7 +51,7 @@ def run(plan: Plan) -> int:
     try:
         try:
             _say(
-                f'{plan.robots} robots, {plan.scenario}, {plan.mode}, {plan.steps or "unlimited"} steps, '
+                f'{plan.robots} robots, {scenario_name(plan.scenario)}, {plan.mode}, {plan.steps or "unlimited"} steps, '
                 f'ROS_DOMAIN_ID={plan.domain_id}, logs in {plan.run_dir}'
             )
             if plan.ground_truth:
