@@ -2,6 +2,8 @@
 the noise level it estimates, and samples placed by their stamps (a mocap-like bag, written by
 training.studies.noise_study)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,8 @@ from knode_swarm_ros.core import load_trajectories
 from training.data.smoother import estimate_noise, smooth_tracks
 from training.import_bag import main as import_bag_main
 from training.studies.noise_study import MocapNoise, truth_at, write_mocap_bag
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'train_flock2d.yaml'
 
 
 def jittered(duration, rate, jitter, drop, rng):
@@ -118,3 +122,60 @@ def test_the_importer_reports_the_noise_it_estimated(tmp_path, capsys):
         return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
 
     assert velocity_error(f) < 0.01 and 5 * velocity_error(f) < velocity_error(g)
+
+
+def test_validation_holds_out_whole_episodes():
+    """Trajectories of several recordings (meta.episodes): validation takes whole episodes, the
+    last ones, by fraction or count; no episode has windows on both sides."""
+    from knode_swarm_ros.core.trajectory import TrajectoryFile
+    from training.learning.config import load_config
+    from training.learning.trainer import split_data
+
+    episodes = [0, 0, 0, 1, 2, 2, 3, 3, 3, 4]
+    S = len(episodes)
+    data = TrajectoryFile(
+        np.zeros((S, 5, 3, 4)), 0.01, 'flock2d', {'episodes': episodes, 'split': {'train': list(range(S))}}
+    )
+    for overrides, held in (({}, {4}), ({'val_fraction': 0.6}, {2, 3, 4}), ({'val_trajectories': 2}, {3, 4})):
+        cfg = load_config(str(CONFIG), {f'data.{k}': v for k, v in overrides.items()})
+        lines = []
+        split = split_data(cfg, data, log=lines.append)
+        val = {episodes[i] for i in split['val_idx']}
+        train = {episodes[i] for i in split['train_idx']}
+        assert val == held and not (val & train) and len(split['val_idx']) + len(split['train_idx']) == S
+        assert 'episodes held out whole' in lines[-1]
+
+
+def test_noisy_recordings_import_and_train_in_seconds(tmp_path, capsys):
+    """End to end on what mocap records: three short noisy episodes (2 mm, jitter, drops, an
+    occlusion) imported together with the defaults, then two epochs of training that validate on
+    one whole episode."""
+    from training import train
+
+    bags = []
+    for e in range(3):
+        mocap = MocapNoise(noise=0.002, occlusion=(0, 3.0, 0.4) if e == 1 else None)
+        write_mocap_bag(tmp_path / f'ep{e}.mcap', flock_truth(T=600), 0.01, mocap, np.random.default_rng(e))
+        bags.append(str(tmp_path / f'ep{e}.mcap'))
+    rc = import_bag_main(
+        bags
+        + ['--scenario', 'flock2d', '--topics', '/mocap/robot_*/pose', '--rate', '100']
+        + ['--length', '100', '--out', str(tmp_path / 'ep.npz')]
+    )
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    f = load_trajectories(tmp_path / 'ep.npz')
+    assert sorted(set(f.meta['episodes'])) == [0, 1, 2]
+    assert all(abs(src['noise']['noise_std'] / 0.002 - 1) < 0.2 for src in f.meta['sources'])
+    config = CONFIG
+    sets = ['training.epochs=2', 'policy.hidden=16', 'selection.every=2', 'selection.trajectories=1']
+    sets += ['selection.steps=20', 'training.batch_size=256']
+    rc = train.main(
+        ['--config', str(config), '--data', str(tmp_path / 'ep.npz'), '--out', str(tmp_path / 'run')]
+        + [a for s in sets for a in ('--set', s)]
+        + ['--no-progress']
+    )
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    assert 'episodes held out whole' in out + err
+    assert (tmp_path / 'run' / 'policy.pt').is_file()
