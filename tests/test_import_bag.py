@@ -73,8 +73,11 @@ def transform(p, q, stamp_ns, child, parent='world'):
 
 
 def run(capsys, *argv):
-    """main(argv) -> (exit status, stdout, stderr)."""
-    rc = main([str(a) for a in argv])
+    """main(argv) -> (exit status, stdout, stderr). The bounds here are those of central
+    differences, so ``--smooth none`` unless a test asks otherwise (tests/test_smoother.py tests the
+    default smoother)."""
+    argv = [str(a) for a in argv]
+    rc = main(argv if '--smooth' in argv else argv + ['--smooth', 'none'])
     out, err = capsys.readouterr()
     return rc, out, err
 

@@ -46,9 +46,9 @@ from training.data.bags.options import (
 )
 from training.data.bags.report import build_meta, derivation, message_counts, summary_lines
 from training.data.bags.robots import read_robots
-from training.data.derive import derive_states, finite_difference, moving_average
+from training.data.derive import derive_states, finite_difference, moving_average, smooth_episode
 from training.data.timeline import segments, stack_episodes, timeline
-from training.data.tracks import TrackError, dataset_meta
+from training.data.tracks import SMOOTH_METHODS, TrackError, dataset_meta
 
 __all__ = [
     'ImportOptions',
@@ -74,6 +74,7 @@ def read_episode(bag_path, opts: ImportOptions, dt: float, notes: List[str]):
                 raise BagError(f'{r.topic}: --use-twist needs {ODOMETRY}, but it carries {r.type_name}')
     notes.extend(bag.notes)
     tl = timeline(robots, opts.max_gap, bag.path)
+    info['noise'] = smooth_episode(robots, opts, tl.medians)
     metas, kept = segments(
         tl, opts, dt, lambda t, label: derive_states(t, robots, opts, dt, notes, label), bag.path
     )
@@ -188,9 +189,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         '--smooth',
-        choices=('none', 'moving-average', 'savgol'),
-        default='none',
-        help='filter the finite-difference velocities (default none)',
+        choices=SMOOTH_METHODS,
+        default='rts',
+        help='rts (default): a Rauch-Tung-Striebel smoother with a constant-acceleration model estimates '
+        "positions and velocities at the samples' stamps, its noise level estimated from the data; "
+        'none: central differences of the resampled positions; moving-average, savgol: those '
+        'differences filtered',
     )
     p.add_argument(
         '--smooth-window', type=int, default=5, metavar='N', help='odd window in output samples (5)'

@@ -33,11 +33,12 @@ from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario, parse_scenario_argument
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
 from training.data.bags.options import ImportResult
-from training.data.derive import derive_states
+from training.data.derive import SMOOTHER, derive_states, noise_lines, smooth_episode, uses_smoother
 from training.data.timeline import segments, stack_episodes, timeline
 from training.data.track_files import read_track_file, single_frame
 from training.data.tracks import (
     GAP_FACTOR,
+    SMOOTH_METHODS,
     ResampleOptions,
     Track,
     TrackError,
@@ -73,6 +74,8 @@ def _derivation(spec: Scenario, given: str, opts: ResampleOptions) -> Dict[str, 
         )
     elif given == 'heading':
         how = 'the given hx, hy[, hz], linearly interpolated and renormalised'
+    elif uses_smoother(opts):
+        how = SMOOTHER + ('' if key == 'velocity' else ' (its direction)')
     elif key == 'velocity':
         how = 'central differences of the resampled positions (second-order one-sided at segment ends)'
     else:
@@ -81,13 +84,16 @@ def _derivation(spec: Scenario, given: str, opts: ResampleOptions) -> Dict[str, 
     if key == 'heading' and given != 'heading':
         out['min_speed'] = opts.min_speed
     differences = given == 'none'
+    if differences and uses_smoother(opts):
+        out['smoothing'] = {'method': 'rts', 'applies_to': "positions and velocities, at the samples' stamps"}
+        return out
     out['smoothing'] = (
         {
             'method': opts.smooth,
             'window': opts.smooth_window,
             'applies_to': 'the finite-difference velocities',
         }
-        if opts.smooth != 'none' and differences
+        if opts.smooth in ('moving-average', 'savgol') and differences
         else {'method': 'none'}
     )
     return out
@@ -149,6 +155,7 @@ def import_tracks(paths: Sequence, opts: ResampleOptions, fps: Optional[float] =
                     f'file holds more frames; nothing to interpolate'
                 )
         tl = timeline(tracks, opts.max_gap, str(path))
+        noise = smooth_episode(tracks, opts, tl.medians)
         metas, kept = segments(
             tl,
             opts,
@@ -156,14 +163,14 @@ def import_tracks(paths: Sequence, opts: ResampleOptions, fps: Optional[float] =
             lambda t, label, tracks=tracks: derive_states(t, tracks, opts, dt, notes, label),
             str(path),
         )
-        episodes.append((tracks, tl, metas, kept))
+        episodes.append((tracks, tl, metas, kept, noise))
     states, traj_meta, T = stack_episodes(
-        [(tl, metas, kept) for _, tl, metas, kept in episodes], opts.length, dt, [str(p) for p in paths]
+        [(tl, metas, kept) for _, tl, metas, kept, _ in episodes], opts.length, dt, [str(p) for p in paths]
     )
     derived = _derivation(spec, given[0], opts)
     length_rule = '--length' if opts.length is not None else 'the shortest kept segment of all files'
     per_episode = []
-    for path, (_, info), (tracks, tl, metas, _) in zip(paths, files, episodes):
+    for path, (_, info), (tracks, tl, metas, _, noise) in zip(paths, files, episodes):
         per_episode.append(
             {
                 **_common_meta(opts, spec, dt, derived),
@@ -185,11 +192,12 @@ def import_tracks(paths: Sequence, opts: ResampleOptions, fps: Optional[float] =
                 'max_gap_rule': tl.gap_rule,
                 'gaps': tl.gaps,
                 'segments': metas,
+                'noise': noise,
             }
         )
     meta = dataset_meta(per_episode, list(paths), traj_meta, opts.test_trajectories, notes)
     summary = []
-    for e, (path, (tracks, tl, metas, _)) in enumerate(zip(paths, episodes)):
+    for e, (path, (tracks, tl, metas, _, noise)) in enumerate(zip(paths, episodes)):
         ids = ', '.join(str(r.id) for r in tracks)
         kept = [s for s in metas if s['kept']]
         summary.append(
@@ -197,6 +205,7 @@ def import_tracks(paths: Sequence, opts: ResampleOptions, fps: Optional[float] =
             f'{len(tl.gaps)} gap(s); {len(kept)} of {len(metas)} segment(s) kept -> '
             f'{meta["episodes"].count(e)} trajectories'
         )
+        summary.extend(f'  {line}' for line in noise_lines(noise))
         for g in tl.gaps:
             summary.append(
                 f'  robot {g["robot"]} missing {g["duration"]:.3f} s from t = {g["from"]:.3f} s to {g["to"]:.3f} s'
@@ -301,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
         help='frames per trajectory; default the shortest kept segment of all files. Longer segments '
         'are cut into windows sharing their boundary frame',
     )
-    p.add_argument('--smooth', choices=('none', 'moving-average', 'savgol'), default='none')
+    p.add_argument('--smooth', choices=SMOOTH_METHODS, default='rts')
     p.add_argument('--smooth-window', type=int, default=5, metavar='N')
     p.add_argument(
         '--velocity-estimator',

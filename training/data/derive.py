@@ -1,7 +1,8 @@
 """What the tracks lack, derived on the grid: velocities (``position_velocity``, as flock2d) and unit
-headings (``position_heading``, as boids3d), from finite differences of the positions, the given
-velocities (a bag's Odometry twist, a file's ``vx, vy``) or the given headings (a bag's pose
-orientation, a file's ``hx, hy``) (docs/import_bag.md)."""
+headings (``position_heading``, as boids3d), from the smoother (:mod:`training.data.smoother`, the
+default: positions and velocities estimated together at the samples' stamps), finite differences of
+the positions, the given velocities (a bag's Odometry twist, a file's ``vx, vy``) or the given
+headings (a bag's pose orientation, a file's ``hx, hy``) (docs/import_bag.md)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,25 @@ import numpy as np
 from knode_swarm_ros.core import get_scenario
 from knode_swarm_ros.core.estimator import VelocityEstimator
 
+from .smoother import estimate_noise, smooth_tracks
 from .tracks import ResampleOptions, Track, TrackError
 
-__all__ = ['finite_difference', 'moving_average', 'causal_velocities', 'derive_states']
+__all__ = [
+    'finite_difference',
+    'moving_average',
+    'causal_velocities',
+    'derive_states',
+    'uses_smoother',
+    'smooth_episode',
+    'noise_lines',
+    'SMOOTHER',
+]
+
+#: How the smoother derives, in the trajectory file's ``meta.derivation``.
+SMOOTHER = (
+    "Rauch-Tung-Striebel smoother, constant-acceleration model, at the samples' stamps; noise level "
+    'estimated from the data (meta.noise), process noise by maximum likelihood'
+)
 
 
 def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
@@ -75,6 +92,46 @@ def _smooth(v: np.ndarray, opts: ResampleOptions, notes: List[str], label: str) 
     return savgol_filter(v, window, opts.smooth_order, axis=0, mode='interp')
 
 
+def uses_smoother(opts: ResampleOptions) -> bool:
+    """Whether the states come from the smoother: ``--smooth rts`` when something is derived from
+    the positions (not with given velocities or headings, not for a position-only state, not when
+    the agents' causal estimator is asked for)."""
+    spec = get_scenario(opts.scenario)
+    given = opts.use_twist or opts.use_orientation or opts.velocity_estimator
+    return opts.smooth == 'rts' and spec.state != 'position' and not given
+
+
+def smooth_episode(robots: List[Track], opts: ResampleOptions, medians: dict) -> Optional[dict]:
+    """Smooth every robot of one episode (``robot.smoothed``, after
+    :func:`training.data.timeline.timeline` has set ``robot.t`` and ``medians``, the median sample
+    interval of each robot id); the noise record for the meta
+    (:func:`training.data.smoother.smooth_tracks`, ``noise_std`` in m), or None without the smoother."""
+    if not uses_smoother(opts):
+        return None
+    # the noise estimate's windows of four samples: one dropped sample is fine, a gap is not
+    max_span = 4.5 * max(medians.values())
+    p = get_scenario(opts.scenario).position_dim
+    fits, record = smooth_tracks([(r.t, r.pos[:, :p]) for r in robots], max_span)
+    for r, fit in zip(robots, fits):
+        r.smoothed = fit
+    record['per_robot_noise_std'] = {
+        str(r.id): estimate_noise([(r.t, r.pos[:, :p])], max_span)[0] for r in robots
+    }
+    return record
+
+
+def noise_lines(record: Optional[dict]) -> List[str]:
+    """The importer's log lines about the noise the smoother estimated (none without it)."""
+    if record is None:
+        return []
+    per = ', '.join(f'{k}: {v * 1e3:.3g}' for k, v in record['per_robot_noise_std'].items())
+    return [
+        f'noise: position noise estimated at {record["noise_std"] * 1e3:.3g} mm (std, from '
+        f'{record["residuals"]} residuals; per robot id, mm: {per}); process ratio '
+        f'{record["process_ratio"]:.3g}'
+    ]
+
+
 def derive_states(
     seg_t: np.ndarray, robots: List[Track], opts: ResampleOptions, dt: float, notes: List[str], label: str
 ) -> Tuple[Optional[np.ndarray], Optional[str]]:
@@ -92,7 +149,14 @@ def derive_states(
                 out[:, i, c] = np.interp(seg_t, r.t, v[:, c])
         return out
 
-    pos = interp(lambda r: r.pos)
+    if robots and robots[0].smoothed is not None:
+        pos, vel = np.empty((L, n, p)), np.empty((L, n, p))
+        for i, r in enumerate(robots):
+            pos[:, i], vel[:, i] = r.smoothed.at(seg_t)
+        if spec.velocity is not None:
+            return np.concatenate([pos, vel], axis=2), None
+    else:
+        pos, vel = interp(lambda r: r.pos), None
     if spec.state == 'position':  # nothing to derive
         return pos, None
     if spec.velocity is not None:
@@ -124,11 +188,12 @@ def derive_states(
                 return None, f'{r.label} has a zero heading at t = {seg_t[k]:.3f} s'
             head[:, i] /= norm[:, None]
         return np.concatenate([pos, head], axis=2), None
-    vel = (
-        interp(lambda r: r.given_velocity(opts.twist_frame))
-        if opts.use_twist
-        else _smooth(finite_difference(pos, dt, opts.heading_diff), opts, notes, label)
-    )
+    if vel is None:
+        vel = (
+            interp(lambda r: r.given_velocity(opts.twist_frame))
+            if opts.use_twist
+            else _smooth(finite_difference(pos, dt, opts.heading_diff), opts, notes, label)
+        )
     speed = np.linalg.norm(vel, axis=2)
     head = np.empty_like(vel)
     for i, r in enumerate(robots):

@@ -17,16 +17,22 @@ import numpy as np
 from knode_swarm_ros.core import get_scenario
 from knode_swarm_ros.core.errors import KnodeError
 
+from .smoother import SmoothedTrack
+
 __all__ = [
     'TrackError',
     'Track',
     'ResampleOptions',
     'GAP_FACTOR',
+    'SMOOTH_METHODS',
     'SHARED_META',
     'check_resample_options',
     'split_meta',
     'dataset_meta',
 ]
+
+#: ``--smooth``: the smoother (default), or finite differences raw or filtered.
+SMOOTH_METHODS = ('rts', 'none', 'moving-average', 'savgol')
 
 #: Default gap threshold in units of the slowest robot's median sample interval.
 GAP_FACTOR = 5.0
@@ -57,7 +63,9 @@ class Track:
     vel: Optional[np.ndarray] = None
     heading: Optional[np.ndarray] = None
     t: np.ndarray = None
+    smoothed: Optional[SmoothedTrack] = None  # set by the smoother (--smooth rts)
     read: int = 0
+    reordered: int = 0  # samples that arrived after a later stamp, placed by their stamp
     duplicates: int = 0
     non_finite: int = 0
 
@@ -83,7 +91,7 @@ class ResampleOptions:
     max_gap: Optional[float] = None  # seconds; default GAP_FACTOR x slowest median interval
     min_duration: float = 1.0  # seconds; shorter segments are dropped
     length: Optional[int] = None  # frames per trajectory; default the shortest kept segment
-    smooth: str = 'none'  # none | moving-average | savgol
+    smooth: str = 'rts'  # rts (smoother, positions too) | none | moving-average | savgol (differences)
     smooth_window: int = 5  # odd, in output samples
     smooth_order: int = 2  # savgol polynomial order
     use_twist: bool = False  # velocity / heading direction from the given velocities
@@ -104,9 +112,11 @@ def check_resample_options(opts: ResampleOptions, error=TrackError) -> None:
         raise error('--use-twist and --use-orientation exclude each other')
     if opts.use_orientation and spec.heading is None:
         raise error('--use-orientation is for boids3d headings; flock2d needs no orientation')
-    if opts.smooth not in ('none', 'moving-average', 'savgol'):
-        raise error(f'--smooth {opts.smooth}: choose none, moving-average or savgol')
-    if opts.smooth != 'none' and (opts.smooth_window < 3 or opts.smooth_window % 2 == 0):
+    if opts.smooth not in SMOOTH_METHODS:
+        raise error(f'--smooth {opts.smooth}: choose {", ".join(SMOOTH_METHODS)}')
+    if opts.smooth in ('moving-average', 'savgol') and (
+        opts.smooth_window < 3 or opts.smooth_window % 2 == 0
+    ):
         raise error(f'--smooth-window must be odd and >= 3, got {opts.smooth_window}')
     if opts.smooth == 'savgol' and not (0 <= opts.smooth_order < opts.smooth_window):
         raise error(f'--smooth-order must be >= 0 and below --smooth-window, got {opts.smooth_order}')

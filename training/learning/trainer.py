@@ -13,7 +13,7 @@ import math
 import os
 import sys
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -64,6 +64,34 @@ def held_out_count(cfg: Dict[str, Any], available: int) -> int:
     return min(max(1, round(dcfg['val_fraction'] * available)), available - 1)
 
 
+def episodes_of(data, idx: np.ndarray) -> Optional[np.ndarray]:
+    """The episode (recording) of each trajectory ``idx`` from ``meta.episodes`` (an import of several
+    recordings), or None when the meta has none or ``idx`` holds a single episode."""
+    episodes = (data.meta or {}).get('episodes')
+    if not isinstance(episodes, list) or len(episodes) != data.states.shape[0]:
+        return None
+    of = np.asarray(episodes)[idx]
+    return of if np.unique(of).size > 1 else None
+
+
+def split_by_episode(
+    cfg: Dict[str, Any], idx: np.ndarray, episodes: np.ndarray, log
+) -> Tuple[np.ndarray, np.ndarray]:
+    """``(train, validation)`` trajectory indices holding out whole episodes: the last
+    :func:`held_out_count` of the episodes (``data.val_trajectories`` then counts episodes), so no
+    recording has windows on both sides."""
+    order = list(dict.fromkeys(episodes.tolist()))  # episodes in the order of their trajectories
+    n_val = held_out_count(cfg, len(order))
+    held = set(order[len(order) - n_val :])
+    val = np.array([e in held for e in episodes.tolist()], dtype=bool)
+    log(
+        f'validation: {n_val} of {len(order)} episodes held out whole ({int(val.sum())} of {idx.size} '
+        f'trajectories; data.val_fraction = {cfg["data"]["val_fraction"]:g}, data.val_trajectories '
+        f'counts episodes)'
+    )
+    return idx[~val], idx[val]
+
+
 def split_data(cfg: Dict[str, Any], data, log=print) -> Dict[str, np.ndarray]:
     """Train and validation trajectories ``[N, T, n, d]`` from the file's ``train`` split.
 
@@ -111,7 +139,11 @@ def split_data(cfg: Dict[str, Any], data, log=print) -> Dict[str, np.ndarray]:
             'val_idx': idx,
             'val_from_frame': cut,
         }
-    train_idx, val_idx = idx[: len(idx) - n_val], idx[len(idx) - n_val :]
+    episodes = episodes_of(data, idx)
+    if episodes is not None:
+        train_idx, val_idx = split_by_episode(cfg, idx, episodes, log)
+    else:
+        train_idx, val_idx = idx[: len(idx) - n_val], idx[len(idx) - n_val :]
     return {
         'train': states[train_idx],
         'val': states[val_idx],

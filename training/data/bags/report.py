@@ -9,6 +9,7 @@ import numpy as np
 
 from knode_swarm_ros.core import get_scenario
 
+from ..derive import SMOOTHER, noise_lines, uses_smoother
 from ..timeline import Timeline
 from .options import FORMAT_VERSION, ImportOptions
 from .robots import Robot
@@ -37,17 +38,20 @@ def message_counts(
             'read': r.read,
             'used': u,
             'duplicates': r.duplicates,
+            'reordered': r.reordered,
             'non_finite': r.non_finite,
             'unused': r.read - u - r.duplicates - r.non_finite,
             'median_interval': tl.medians[r.id],
         }
     read = sum(r.read for r in robots)
     duplicates = sum(r.duplicates for r in robots)
+    reordered = sum(r.reordered for r in robots)
     non_finite = sum(r.non_finite for r in robots)
     return {
         'read': read,
         'used': used,
         'duplicates': duplicates,
+        'reordered': reordered,
         'non_finite': non_finite,
         'unused': read - used - duplicates - non_finite,
         'ignored_sources': ignored,
@@ -60,6 +64,14 @@ def derivation(opts: ImportOptions, notes: List[str]) -> Dict[str, Any]:
     spec = get_scenario(opts.scenario)
     if spec.state == 'position':
         return {'nothing': 'the state is the position alone'}
+    if uses_smoother(opts):
+        derived = {
+            spec.state.split('_')[1]: SMOOTHER + ('' if spec.velocity is not None else ' (its direction)'),
+            'smoothing': {'method': 'rts', 'applies_to': "positions and velocities, at the samples' stamps"},
+        }
+        if spec.heading is not None:
+            derived['min_speed'] = opts.min_speed
+        return derived
     if spec.velocity is not None:
         derived = {
             'velocity': 'Odometry twist.twist.linear (' + opts.twist_frame + ' frame), linear interpolation'
@@ -83,10 +95,10 @@ def derivation(opts: ImportOptions, notes: List[str]) -> Dict[str, Any]:
             **({'order': opts.smooth_order} if opts.smooth == 'savgol' else {}),
             'applies_to': 'the finite-difference velocities (positions are not smoothed)',
         }
-        if opts.smooth != 'none' and uses_differences
+        if opts.smooth in ('moving-average', 'savgol') and uses_differences
         else {'method': 'none'}
     )
-    if opts.smooth != 'none' and not uses_differences:
+    if opts.smooth in ('moving-average', 'savgol') and not uses_differences:
         notes.append(
             '--smooth applies to finite-difference velocities only; ignored with '
             + ('--use-twist' if opts.use_twist else '--use-orientation')
@@ -150,6 +162,7 @@ def build_meta(
         'length_rule': length_rule
         + '; longer segments are cut into windows of T frames sharing their boundary frame',
         'derivation': derived,
+        'noise': info.get('noise'),
         'messages': messages,
     }
 
@@ -198,13 +211,15 @@ def summary_lines(bag, robots: List[Robot], info, meta, out) -> List[str]:
     d = meta['derivation']
     lines.append(
         f'derived: {d.get("velocity") or d.get("heading")}; smoothing {d["smoothing"]["method"]}'
-        + (f' (window {d["smoothing"]["window"]})' if d['smoothing']['method'] != 'none' else '')
+        + (f' (window {d["smoothing"]["window"]})' if 'window' in d['smoothing'] else '')
     )
+    lines.extend(noise_lines(meta.get('noise')))
     m = meta['messages']
     lines.append(
         f'messages: {m["read"]} read, {m["used"]} used, {m["read"] - m["used"]} not used '
         f'({m["duplicates"]} duplicate stamps, {m["non_finite"]} non-finite, {m["unused"]} outside the '
         f'kept trajectories)'
+        + (f'; {m["reordered"]} arrived late, placed by stamp' if m.get('reordered') else '')
     )
     if m['ignored_sources']:
         lines.append('ignored: ' + ', '.join(f'{k} ({v})' for k, v in sorted(m['ignored_sources'].items())))

@@ -194,13 +194,19 @@ def finalise(r: Robot, opts: ImportOptions) -> None:
     ns = np.array([s.stamp_ns if opts.stamp == 'header' else s.log_ns for s in samples], dtype=np.int64)
     if opts.stamp == 'header' and np.all(ns == 0):
         raise BagError(f'{where}: every header.stamp is zero; use --stamp log to take the recording time')
-    back = np.nonzero(np.diff(ns) < 0)[0]
-    if back.size:
-        k = int(back[0]) + 1
-        raise BagError(
-            f'{where}: {opts.stamp} stamps go backwards at message {k} '
-            f'({ns[k - 1]} ns then {ns[k]} ns, {(ns[k - 1] - ns[k]) * 1e-9:.6f} s earlier)'
-        )
+    # a message that arrived late is placed by its stamp; one going back to a stamp already seen
+    # is a clock or publisher problem, not a late arrival
+    late = np.nonzero(ns[1:] < np.maximum.accumulate(ns)[:-1])[0] + 1
+    for k in late:
+        if np.any(ns[:k] == ns[k]):
+            raise BagError(
+                f'{where}: {opts.stamp} stamps go backwards at message {k} to a stamp already seen '
+                f'({ns[k - 1]} ns then {ns[k]} ns, {(ns[k - 1] - ns[k]) * 1e-9:.6f} s earlier)'
+            )
+    order = np.argsort(ns, kind='stable')
+    r.reordered = int(late.size)
+    samples = [samples[k] for k in order]
+    ns = ns[order]
     pos = np.array([s.position for s in samples], dtype=np.float64).reshape(-1, 3)
     quat = np.array([s.orientation for s in samples], dtype=np.float64).reshape(-1, 4)
     lin = None
