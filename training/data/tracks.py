@@ -133,8 +133,9 @@ def check_resample_options(opts: ResampleOptions, error=TrackError) -> None:
             f'--velocity-estimator {opts.velocity_estimator}: needs a window >= 2 and a scenario with '
             'velocities (flock2d)'
         )
-    if opts.velocity_estimator and (opts.use_twist or opts.smooth != 'none'):
-        raise error('--velocity-estimator excludes --use-twist and --smooth')
+    # the estimator replaces the default smoother; a second smoothing on top of it is refused
+    if opts.velocity_estimator and (opts.use_twist or opts.smooth in ('moving-average', 'savgol')):
+        raise error('--velocity-estimator excludes --use-twist and --smooth moving-average|savgol')
     if opts.heading_diff not in ('backward', 'central'):
         raise error(f'--heading-diff {opts.heading_diff}: choose backward or central')
 
