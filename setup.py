@@ -67,6 +67,7 @@ setup(
         'robot': ['onnxruntime==1.32.0'],
         'torch': ['torch==2.13.0'],
         'sweep': ['ray==2.60.0'],
+        'monitor': ['aiohttp==3.14.5'],
     },
     zip_safe=False,
     entry_points={

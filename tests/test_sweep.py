@@ -126,13 +126,13 @@ def test_resume_runs_only_the_cells_not_finished(two_sweeps, tiny, monkeypatch):
 
 
 def test_a_cell_that_raises_is_reported_failed_and_the_others_finish(tiny, local_ray, tmp_path):
-    # 5 validation trajectories: more than the train split holds, so that cell's Trainer raises
-    rc = _sweep(tiny, tmp_path, '--axis', 'data.val_trajectories=1,5', '--workers', '2')
+    # a policy dt of 1.5 data steps: a valid config that only the data refuses, in that cell's Trainer
+    rc = _sweep(tiny, tmp_path, '--axis', 'data.policy_dt=0.01,0.015', '--workers', '2')
     assert rc == 1
     cells = {c['name']: c for c in _json(tmp_path / 'sweep.json')['cells']}
-    good, bad = cells['data.val_trajectories=1'], cells['data.val_trajectories=5']
+    good, bad = cells['data.policy_dt=0.01'], cells['data.policy_dt=0.015']
     assert good['status'] == 'done' and good['metrics']['score'] >= 0
-    assert bad['status'] == 'failed' and bad['attempts'] == 2 and 'val_trajectories' in bad['error']
+    assert bad['status'] == 'failed' and bad['attempts'] == 2 and 'policy_dt' in bad['error']
     assert 'failed twice' in (tmp_path / 'sweep.log').read_text()
 
 

@@ -108,7 +108,13 @@ class MonitorNode(Node):
         self.hello = None
         self.web = None
         if self.web_on:
-            from .web import WebServer, is_loopback
+            try:
+                from .web import WebServer, is_loopback
+            except ImportError as exc:
+                raise ConfigError(
+                    f"parameter 'web': the page needs aiohttp ({exc}): pip install aiohttp==3.14.5 "
+                    "(the 'monitor' extra), or run with web:=false"
+                ) from None
 
             if not is_loopback(self.host):
                 self.get_logger().warning(
