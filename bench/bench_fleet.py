@@ -98,6 +98,13 @@ def main(argv=None):
     ap.add_argument('--steps', type=int, default=400, help='steps of 0.05 s (default 400: 20 s)')
     ap.add_argument('--noise', type=float, default=0.002)
     ap.add_argument('--pose-rate', type=float, default=20.0)
+    ap.add_argument(
+        '--window',
+        type=int,
+        default=0,
+        help="the fleet's velocity_window (0: the one whose lag is closest to 45 ms at --pose-rate, the "
+        'default window at 100 Hz)',
+    )
     ap.add_argument('--agents-per-process', type=int, default=1)
     ap.add_argument('--streams', type=int, default=2000)
     ap.add_argument('--timeout', type=float, default=300.0)
@@ -114,9 +121,9 @@ def main(argv=None):
             tmp = Path(tmp)
             fleet = tmp / 'fleet.yaml'
             robots = {f'cf{i}': {'id': i} for i in range(args.robots)}
-            fleet.write_text(
-                json.dumps({'robots': robots, 'state': {'topic': '/mocap/{name}/pose', 'type': 'pose'}})
-            )
+            window = args.window or max(2, int(round(1 + 2 * lag_s(DEFAULT_WINDOW, 0.01) * args.pose_rate)))
+            state = {'topic': '/mocap/{name}/pose', 'type': 'pose', 'velocity_window': window}
+            fleet.write_text(json.dumps({'robots': robots, 'state': state}))
             runs = []
             for seed in range(100, 100 + args.starts):
                 runs.append(
@@ -135,6 +142,9 @@ def main(argv=None):
             'steps': args.steps,
             'pose_rate_hz': args.pose_rate,
             'pose_noise_m': args.noise,
+            'velocity_window': window,
+            'lag_ms': 1e3 * lag_s(window, 1.0 / args.pose_rate),
+            'velocity_noise_mm_s': 1e3 * args.noise * noise_gain(window, 1.0 / args.pose_rate),
             'final_avd_odometry_mean': float(odom.mean()) if ok else None,
             'final_avd_pose_mean': float(pose.mean()) if ok else None,
             'final_avd_ratio_pose_over_odometry': float(pose.mean() / odom.mean()) if ok else None,
