@@ -35,6 +35,7 @@ from knode_swarm_ros.logic.common import MODES, ConfigError, percentiles, stamp_
 from .robot_models import DEFAULT_ROBOT_MODEL, RobotModel, make_robot_model
 
 __all__ = [
+    'setpoint_acceleration',
     'SwarmSim',
     'initial_state',
     'initial_state_from_file',
@@ -57,6 +58,13 @@ COMMAND_OUTCOMES = (
     'rejoined',
     'malformed',
 )
+
+
+def setpoint_acceleration(setpoint, velocity, dt: float) -> np.ndarray:
+    """The acceleration ``[m]`` a simulated robot with a velocity loop applies for a velocity
+    setpoint: ``(v_sp - v) / dt``, so that it reaches ``v_sp`` after one step (the ideal loop
+    docs/ros.md, "Velocity setpoints", assumes), from its true velocity ``v [m]``."""
+    return (np.asarray(setpoint, dtype=np.float64) - np.asarray(velocity, dtype=np.float64)) / float(dt)
 
 
 def has_ground_truth(scenario) -> bool:

@@ -1,6 +1,11 @@
 """The ``agent`` executable: one robot's learnt controller as a ROS 2 node.
 
 ``ros2 run knode_swarm_ros agent --ros-args -p id:=3 --params-file config/agent_flock2d.yaml``
+``ros2 run knode_swarm_ros agent --ros-args -p fleet:=fleet.yaml -p name:=cf231``
+
+With a fleet file the topics, names and message types are the fleet's (docs/ros.md, "Your own
+fleet"): ``Fleet.state_topic`` / ``command_topic`` / ``status_topic`` below stand for the
+``robot_<id>/...`` names of the default fleet.
 
 Subscribes to every robot's ``robot_<j>/odom`` (its own included), publishes
 ``robot_<id>/cmd_accel`` (flock2d, AccelStamped) or ``robot_<id>/cmd_vel`` (boids3d,
@@ -15,27 +20,24 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS, AgentLogic
-from knode_swarm_ros.logic.common import (
-    ConfigError,
-    agent_status_topic,
-    command_topic,
-    odom_topic,
-    status_json,
-)
+from knode_swarm_ros.logic.agent.setpoint import SetpointOutput
+from knode_swarm_ros.logic.common import ConfigError, status_json
 from knode_swarm_ros.logic.reporting import LOG_EVERY_S as _LOG_EVERY_S
 from knode_swarm_ros.logic.reporting import Throttle, throttled_log, write_json_report
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
+    COMMAND_MESSAGES,
     CdrError,
-    command_msg_type,
-    command_to_msg,
+    command_to_cdr,
     odom_fields_from_cdr,
     time_msg,
+    twist_to_cdr,
 )
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, node_name_from_args
@@ -44,7 +46,7 @@ from .health import AgentHealth
 from .link import AgentLink
 from .managed import ManagedAgentMixin
 from .params import declare_agent_parameters
-from .plumbing import control_timers, decode_state, load_agent_policy, subscribe_odometry, warm_up_inputs
+from .plumbing import StateDecoder, control_timers, load_agent_policy, missing_names, warm_up_inputs
 from .unicycle import AgentUnicycle
 
 __all__ = ['AgentNode', 'main']
@@ -81,9 +83,10 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
     def _setup(self) -> None:
         """Parameters, policy (loaded, checked, warmed up), subscriptions, timers: configure."""
         robot_id = declare(self, 'id', -1, "this robot's id (robot_<id>/...)", int_range=(-1, 1_000_000))
-        if robot_id < 0:
-            raise ConfigError("parameter 'id' is required: pass -p id:=N")
+        name = declare(self, 'name', '', "this robot's name in the fleet file (instead of 'id')")
         p = declare_agent_parameters(self)  # the same for the hosting ``agents`` node
+        fleet = p.swarm_fleet()
+        robot_id = own_id(fleet, robot_id, name, bool(p.fleet_file))
         mode, control_rate, state_timeout = p.mode, p.control_rate, p.state_timeout
         self.twist_frame = p.twist_frame
         self.link = AgentLink(self, robot_id, mode)  # link model (loss, delay, range): off by default
@@ -99,6 +102,18 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         policy = load_agent_policy(p.policy, *p.policy_args())
         self.logic = AgentLogic(config, policy)
         self.spec = self.logic.spec
+        fleet.check_scenario(self.spec.command, self.spec.velocity is not None)
+        self.fleet = fleet
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame)
+        self._own_z = None  # the newest own state heard (a velocity setpoint starts from its velocity)
+        self.setpoint = (
+            SetpointOutput(
+                1.0 / control_rate if mode == 'realtime' and control_rate > 0 else policy.dt,
+                fleet.command.speed_limit,
+            )
+            if fleet.command.interface == 'velocity_setpoint'
+            else None
+        )
         self._warm_up()
         self.unicycle = AgentUnicycle(
             self,
@@ -117,11 +132,18 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self._log_throttle = Throttle()
         self._announced_ready = False
 
+        if self.unicycle.enabled and fleet.state.type != 'odometry':
+            raise ConfigError(
+                f"parameter 'command_interface' = 'unicycle' reads the Odometry twist, but the fleet "
+                f'{fleet.path} gives poses (state type {fleet.state.type})'
+            )
+        self.command_type = fleet.command_type(self.spec.command)
         self.cmd_pub = self.create_publisher(
-            command_msg_type(self.spec), command_topic(robot_id, self.spec.command), qos.COMMAND
+            COMMAND_MESSAGES[self.command_type], fleet.command_topic(robot_id, self.spec.command), qos.COMMAND
         )
-        self.status_pub = self.create_publisher(String, agent_status_topic(robot_id), qos.STATUS)
-        self.odom_subs = subscribe_odometry(self, ids, self._on_odom)
+        self.status_pub = self.create_publisher(String, fleet.status_topic(robot_id), qos.STATUS)
+        self.odom_subs = self.states.subscribe(self, ids, self._on_odom)
+        self._missing_since = time.monotonic()
         self.on_state = (
             self.logic.ticks is not None
         )  # realtime: ticks come with the own state (realtime_tick.py)
@@ -152,13 +174,15 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            robot, stamp, frame, z = decode_state(topic_robot, data, self.spec, self.twist_frame)
+            robot, stamp, frame, z = self.states.decode(topic_robot, data)
         except CdrError as exc:
             self.logic.malformed()
             self._note_drop('malformed', str(exc))
             return
         if self.unicycle.enabled and robot is not None:  # the policy sees the point ahead (unicycle_state)
             z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
+        if robot == self.logic.me and np.all(np.isfinite(z)):
+            self._own_z = z
         now = self.get_clock().now().nanoseconds
         if not self._through_link(robot, stamp, z, now):
             if self.on_state:  # states the link released may complete a waiting tick
@@ -167,7 +191,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
         if outcome in self._drops:
             detail = (
-                f'child_frame_id {frame!r} on {odom_topic(topic_robot)}'
+                f'child_frame_id {frame!r} on {self.fleet.state_topic(topic_robot)}'
                 if outcome == 'unknown_id'
                 else f'robot {topic_robot} at {stamp * 1e-9:.3f} s (clock {now * 1e-9:.3f} s)'
             )
@@ -228,7 +252,8 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             # (ticking on the own state, a fresh own state also gives None: its arrival ticks)
             if not (self.on_state and self.logic.me in self.logic.newest_ns):
                 self._throttled(
-                    'no_state', f'no state of my own yet on {odom_topic(self.logic.me)}: no command'
+                    'no_state',
+                    f'no state of my own yet on {self.fleet.state_topic(self.logic.me)}: no command',
                 )
         else:
             if cmd.stop:
@@ -250,8 +275,15 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             return
         if self.unicycle.enabled:  # differential drive: cmd_vel (linear.x, angular.z)
             self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
+            return
+        value = cmd.value
+        if self.setpoint is not None:  # a velocity loop: v_sp = v_est + u T
+            value = self.setpoint.value(cmd, self._own_z[self.spec.velocity])
+        # serialized directly (AccelStamped and TwistStamped share one layout)
+        if self.command_type == 'twist':
+            self.cmd_pub.publish(twist_to_cdr(value))
         else:
-            self.cmd_pub.publish(command_to_msg(cmd.stamp_ns, cmd.value, self.spec))
+            self.cmd_pub.publish(command_to_cdr(cmd.stamp_ns, value, self.spec))
 
     # --- logging -------------------------------------------------------------------
     def _throttled(self, key: str, text: str, warn: bool = False) -> None:
@@ -282,6 +314,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.get_logger().warning(text)
 
     def _publish_status(self) -> None:
+        self._report_missing()
         status = self._status()
         self.status_pub.publish(String(data=status_json(**status)))
         last = self.logic.last_command
@@ -293,8 +326,17 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             time.monotonic(),
         )
 
+    def _report_missing(self) -> None:
+        """Name, now and then, the fleet's robots never heard (left out of every Y until they are)."""
+        missing = self.logic.missing()
+        if missing and time.monotonic() - self._missing_since >= self.logic.config.state_timeout:
+            self._throttled(
+                'missing', f'never heard: {missing_names(self.fleet, missing)} (left out of Y)', True
+            )
+
     def _status(self) -> dict:
         status = self.logic.status()
+        status['missing_names'] = [self.fleet.name_of(i) for i in status['missing']]
         status['ready'] = bool(status['ready'] and self.active)  # a simulator waits for activation
         status['lifecycle'] = 'active' if self.active else 'inactive'
         if self.link.enabled:
@@ -307,6 +349,25 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         """Write the counters to the ``report`` file (if set)."""
         if getattr(self, 'report_path', ''):
             write_json_report(self.report_path, self._status())
+
+
+def own_id(fleet, robot_id: int, name: str, from_file: bool) -> int:
+    """This robot's id from the ``id`` / ``name`` parameters (one of them; both must agree).
+
+    Raises:
+        ConfigError: neither given, a name not in the fleet, or the two disagree.
+    """
+    if name:
+        named = fleet.robot(name).id
+        if robot_id >= 0 and robot_id != named:
+            raise ConfigError(
+                f"parameter 'id' = {robot_id} but 'name' = {name!r} is robot {named} of the fleet"
+            )
+        return named
+    if robot_id < 0:
+        hint = ' or -p name:=NAME' if from_file else ''
+        raise ConfigError(f"parameter 'id' is required: pass -p id:=N{hint}")
+    return robot_id
 
 
 def main(args=None):

@@ -11,12 +11,13 @@ the ``agents`` node with a message naming the parameter.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List
+from typing import List, Optional
 
 from knode_swarm_ros.logic.agent.agent_logic import AgentConfig
 from knode_swarm_ros.logic.agent.control_period import RATE_CHECKS
 from knode_swarm_ros.logic.agent.realtime_tick import TICK_ON
 from knode_swarm_ros.logic.common import MODES, robot_id_list
+from knode_swarm_ros.logic.contract.fleet import Fleet, default_fleet, load_fleet
 from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES
 from knode_swarm_ros.nodes.common.params import SCENARIO_HELP, declare, declare_int_array, scenario_parameter
 
@@ -47,11 +48,19 @@ class AgentParams:
     status_period: float
     twist_frame: str
     tick_on: str = 'state'
+    fleet_file: str = ''
+    fleet: Optional[Fleet] = None  # the fleet file's, read at declaration
 
     @property
     def ids(self) -> List[int]:
-        """The swarm's robot ids."""
+        """The swarm's robot ids: the fleet file's, else ``robot_ids`` / ``robots``."""
+        if self.fleet is not None:
+            return self.fleet.ids
         return robot_id_list(self.robots, self.robot_ids)
+
+    def swarm_fleet(self) -> Fleet:
+        """The fleet: the file's, else the default ``robot_<id>`` layout of :attr:`ids`."""
+        return self.fleet if self.fleet is not None else default_fleet(self.ids)
 
     def config(self, robot_id: int) -> AgentConfig:
         """Robot ``robot_id``'s :class:`AgentConfig`."""
@@ -89,6 +98,13 @@ def declare_agent_parameters(node) -> AgentParams:
         ConfigError: a value of the wrong type, out of range or not one of the choices.
     """
     d = declare
+    fleet_file = d(
+        node,
+        'fleet',
+        '',
+        "fleet file (docs/ros.md, 'Your own fleet'): the robots' names and ids, state and command "
+        "topics and types; overrides 'robots' and 'robot_ids' (empty: robot_<id>, Odometry)",
+    )
     return AgentParams(
         robots=d(
             node,
@@ -228,4 +244,6 @@ def declare_agent_parameters(node) -> AgentParams:
             'timer: tick on a free-running timer at control_rate',
             choices=TICK_ON,
         ),
+        fleet_file=fleet_file,
+        fleet=load_fleet(fleet_file) if fleet_file else None,
     )

@@ -1,6 +1,7 @@
 """What the lone ``agent`` node and the hosting ``agents`` node share, so that neither imports
 the other's node module: loading the policy and warming it up, subscribing to every robot's
-odometry and decoding it, and the control timers of a mode.
+state topic (the fleet's: Odometry, or PoseStamped with estimated velocities) and decoding it,
+and the control timers of a mode.
 """
 
 from __future__ import annotations
@@ -9,15 +10,16 @@ from functools import partial
 from typing import Callable, Optional, Sequence, Tuple
 
 import numpy as np
-from nav_msgs.msg import Odometry
 
 from knode_swarm_ros.logic.agent.control_period import shipped_policy_for_rate
 from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
-from knode_swarm_ros.logic.common import ConfigError, is_robot_frame, odom_topic
+from knode_swarm_ros.logic.common import ConfigError
+from knode_swarm_ros.logic.contract.fleet import Fleet
+from knode_swarm_ros.logic.contract.pose import PoseStates
 from knode_swarm_ros.nodes.common import qos
-from knode_swarm_ros.nodes.common.conversions import CdrError, odom_from_cdr
+from knode_swarm_ros.nodes.common.conversions import STATE_MESSAGES, CdrError, odom_from_cdr, pose_from_cdr
 
-__all__ = ['load_agent_policy', 'warm_up_inputs', 'subscribe_odometry', 'decode_state', 'control_timers']
+__all__ = ['load_agent_policy', 'warm_up_inputs', 'StateDecoder', 'control_timers', 'missing_names']
 
 
 def load_agent_policy(
@@ -97,30 +99,48 @@ def warm_up_inputs(batch: int, k: int, state_dim: int) -> Tuple[np.ndarray, np.n
     return Y, mask
 
 
-def subscribe_odometry(node, ids: Sequence[int], on_odom: Callable[[int, bytes], None]) -> list:
-    """One raw subscription per robot's ``robot_<j>/odom``: ``on_odom(j, bytes)`` (decoded by
-    :func:`decode_state`, 3x cheaper than rclpy's message objects)."""
-    return [
-        node.create_subscription(Odometry, odom_topic(rid), partial(on_odom, rid), qos.ODOM, raw=True)
-        for rid in ids
-    ]
+class StateDecoder:
+    """Every robot's state topic of the fleet, subscribed raw and decoded to ``z [d]``.
 
-
-def decode_state(
-    topic_robot: int, data: bytes, spec, twist_frame: str
-) -> Tuple[Optional[int], int, str, np.ndarray]:
-    """``(robot, stamp_ns, child_frame_id, z [d])`` of raw Odometry bytes heard on
-    ``robot_<topic_robot>/odom``; ``robot`` None when the child frame is not that robot's (the
-    logic files it as ``unknown_id``).
-
-    Raises:
-        CdrError: undecodable bytes; the message names the topic.
+    Odometry: the REP 105 mapping (:func:`.conversions.odom_from_cdr`), a ``child_frame_id``
+    that is not the topic's robot's gives robot None (the logic files it as ``unknown_id``).
+    PoseStamped: position (and heading) from the pose, the velocity (when the state has one)
+    estimated from that robot's poses (:class:`knode_swarm_ros.logic.contract.pose.PoseStates`,
+    shared by the robots of a process: they hear the same poses).
     """
-    try:
-        stamp, frame, z = odom_from_cdr(data, spec, twist_frame)
-    except CdrError as exc:
-        raise CdrError(f'{odom_topic(topic_robot)}: {exc}') from None
-    return (topic_robot if is_robot_frame(frame, topic_robot) else None), stamp, frame, z
+
+    def __init__(self, fleet: Fleet, spec, twist_frame: str):
+        self.fleet = fleet
+        self.spec = spec
+        self.twist_frame = twist_frame
+        self.poses = PoseStates(spec, fleet.state.velocity_window) if fleet.state.type == 'pose' else None
+
+    def subscribe(self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None]) -> list:
+        """One raw subscription per robot's state topic: ``on_state(j, bytes)`` (decoded by
+        :meth:`decode`, 3x cheaper than rclpy's message objects)."""
+        msg_type = STATE_MESSAGES[self.fleet.state.type]
+        return [
+            node.create_subscription(
+                msg_type, self.fleet.state_topic(rid), partial(on_state, rid), qos.ODOM, raw=True
+            )
+            for rid in ids
+        ]
+
+    def decode(self, topic_robot: int, data: bytes) -> Tuple[Optional[int], int, str, np.ndarray]:
+        """``(robot, stamp_ns, frame, z [d])`` of raw bytes heard on robot ``topic_robot``'s state
+        topic (``frame``: Odometry's child_frame_id, a pose's header.frame_id).
+
+        Raises:
+            CdrError: undecodable bytes; the message names the topic.
+        """
+        try:
+            if self.poses is not None:
+                stamp, frame, pose = pose_from_cdr(data)
+                return topic_robot, stamp, frame, self.poses.state(topic_robot, stamp, pose[:3], pose[3:])
+            stamp, frame, z = odom_from_cdr(data, self.spec, self.twist_frame)
+        except CdrError as exc:
+            raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
+        return (topic_robot if self.fleet.owns_frame(frame, topic_robot) else None), stamp, frame, z
 
 
 def control_timers(
@@ -137,3 +157,8 @@ def control_timers(
     if grace_s is None:
         return control, None
     return control, GraceArm(node.create_timer(grace_s, on_grace, clock=wall))
+
+
+def missing_names(fleet, ids) -> str:
+    """``cf5 (id 7) on /vrpn_mocap/cf5/pose, ...``: robots never heard, and where they were awaited."""
+    return ', '.join(f'{fleet.name_of(i)} (id {i}) on {fleet.state_topic(i)}' for i in ids)

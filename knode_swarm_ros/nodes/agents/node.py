@@ -30,24 +30,19 @@ from std_msgs.msg import String
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS
 from knode_swarm_ros.logic.agent.hosted import HostedAgents, format_ids, parse_ids
-from knode_swarm_ros.logic.common import ConfigError, agent_status_topic, command_topic, status_json
+from knode_swarm_ros.logic.common import ConfigError, status_json
 from knode_swarm_ros.logic.reporting import Throttle, write_json_report
 from knode_swarm_ros.nodes.agent.health import HostedHealth
 from knode_swarm_ros.nodes.agent.params import declare_agent_parameters
 from knode_swarm_ros.nodes.agent.plumbing import (
+    StateDecoder,
     control_timers,
-    decode_state,
     load_agent_policy,
-    subscribe_odometry,
+    missing_names,
     warm_up_inputs,
 )
 from knode_swarm_ros.nodes.common import qos
-from knode_swarm_ros.nodes.common.conversions import (
-    CdrError,
-    command_msg_type,
-    command_to_cdr,
-    string_to_cdr,
-)
+from knode_swarm_ros.nodes.common.conversions import COMMAND_MESSAGES, CdrError, command_to_cdr, string_to_cdr
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.params import check_overrides, declare
 
@@ -133,15 +128,24 @@ class AgentsNode(Node):
         self._warm_up(policy)
         self.health = HostedHealth(self, hosted, p.state_timeout, qos.DIAGNOSTICS)  # /diagnostics, one array
 
-        msg_type = command_msg_type(self.spec)
+        fleet = self.fleet = p.swarm_fleet()
+        fleet.check_scenario(self.spec.command, self.spec.velocity is not None)
+        if fleet.command.interface != 'policy' or fleet.command_type(self.spec.command) == 'twist':
+            raise ConfigError(
+                f'the fleet {fleet.path} commands {fleet.command.interface} ({fleet.command.type}): a real '
+                "robot's output, not offered by the agents node; run one agent per robot"
+            )
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame)
+        msg_type = COMMAND_MESSAGES[fleet.command_type(self.spec.command)]
         self.cmd_pubs = {
-            rid: self.create_publisher(msg_type, command_topic(rid, self.spec.command), qos.COMMAND)
+            rid: self.create_publisher(msg_type, fleet.command_topic(rid, self.spec.command), qos.COMMAND)
             for rid in hosted
         }
         self.status_pubs = {
-            rid: self.create_publisher(String, agent_status_topic(rid), qos.STATUS) for rid in hosted
+            rid: self.create_publisher(String, fleet.status_topic(rid), qos.STATUS) for rid in hosted
         }
-        self.odom_subs = subscribe_odometry(self, ids, self._on_odom)  # decoded and filed once for all
+        self.odom_subs = self.states.subscribe(self, ids, self._on_odom)  # decoded and filed once for all
+        self._started = time.monotonic()
         ticks = self.hosted.logics[hosted[0]].ticks
         self.on_state = ticks is not None  # realtime: ticks come with the own states
         self.control_timer, self._grace = control_timers(
@@ -170,7 +174,7 @@ class AgentsNode(Node):
     # --- callbacks -----------------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            robot, stamp, frame, z = decode_state(topic_robot, data, self.spec, self.twist_frame)
+            robot, stamp, frame, z = self.states.decode(topic_robot, data)
         except CdrError as exc:
             self.hosted.malformed()
             self._note_drop('malformed', str(exc))
@@ -225,12 +229,22 @@ class AgentsNode(Node):
 
     def _publish_status(self) -> None:
         reports = {}
+        missing = set()
         for rid, logic in self.hosted.logics.items():
             status = logic.status()
+            status['missing_names'] = [self.fleet.name_of(i) for i in status['missing']]
+            missing.update(status['missing'])
             self.status_pubs[rid].publish(string_to_cdr(status_json(**status)))  # bytes: no msg objects
             last = logic.last_command
             reports[rid] = (status, logic.newest_ns.get(rid), 0 if last is None else last.neighbours)
         self.health.publish(reports, self.get_clock().now().nanoseconds, time.monotonic())
+        late = (
+            time.monotonic() - self._started >= self.hosted.logics[self.hosted.hosted[0]].config.state_timeout
+        )
+        if missing and late and self._log_throttle.ready('missing'):
+            self.get_logger().warning(
+                f'never heard: {missing_names(self.fleet, sorted(missing))} (left out of Y)'
+            )
 
     def write_report(self) -> None:
         """Write every hosted robot's counters to the ``report`` file (if set)."""

@@ -40,7 +40,7 @@ from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import AccelStamped, TwistStamped
+from geometry_msgs.msg import AccelStamped, PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 
 from knode_swarm_ros.core.errors import KnodeError
@@ -71,7 +71,17 @@ __all__ = [
     'cdr_pad',
     'cdr_put_string',
     'msg_to_command',
+    'STATE_MESSAGES',
+    'COMMAND_MESSAGES',
+    'pose_to_cdr',
+    'pose_from_cdr',
+    'twist_to_cdr',
+    'twist_fields_from_cdr',
 ]
+
+#: A fleet's ``state.type`` / ``command.type`` (logic/contract/fleet.py) -> its message class.
+STATE_MESSAGES = {'odometry': Odometry, 'pose': PoseStamped}
+COMMAND_MESSAGES = {'accel_stamped': AccelStamped, 'twist_stamped': TwistStamped, 'twist': Twist}
 
 ScenarioLike = Union[str, Scenario]
 
@@ -349,3 +359,64 @@ def msg_to_command(msg, scenario: ScenarioLike) -> Tuple[int, np.ndarray]:
     vec = msg.accel.linear if spec.command == 'acceleration' else msg.twist.linear
     u = np.array([vec.x, vec.y, vec.z][: spec.command_dim], dtype=np.float64)
     return time_ns(msg.header.stamp), u
+
+
+# --- poses (geometry_msgs/PoseStamped: motion capture) and unstamped Twist -------------------
+def pose_to_cdr(ns: int, position, quaternion, frame_id: str = WORLD_FRAME) -> bytes:
+    """A serialized PoseStamped: header (stamp ``ns``, ``frame_id``), position ``[3]``,
+    orientation ``(x, y, z, w)``; the bytes rclpy serializes for that message."""
+    if ns < 0:
+        raise ValueError(f'stamps before time 0 cannot be represented, got {ns} ns')
+    buf = bytearray(CDR_LE)
+    buf.extend(struct.pack('<iI', ns // 1_000_000_000, ns % 1_000_000_000))
+    cdr_put_string(buf, frame_id)
+    cdr_pad(buf, 8)
+    buf.extend(struct.pack('<7d', *(float(x) for x in position), *(float(x) for x in quaternion)))
+    return bytes(buf)
+
+
+def pose_from_cdr(data: bytes) -> Tuple[int, str, Tuple[float, ...]]:
+    """(stamp ns, header.frame_id, pose (x, y, z, qx, qy, qz, qw)) of a serialized PoseStamped,
+    plain CDR in either byte order (as :func:`odom_fields_from_cdr`).
+
+    Raises:
+        CdrError: not a serialized PoseStamped (unknown encapsulation, truncated, bad string,
+            wrong length).
+    """
+    try:
+        if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+            raise CdrError(f'unknown CDR encapsulation {bytes(data[:4]).hex()}')
+        e = '<' if data[1] == 1 else '>'
+        sec, nanosec, length = struct.unpack_from(e + 'iII', data, 4)
+        pos = 16
+        if length < 1 or pos + length > len(data) or data[pos + length - 1] != 0:
+            raise CdrError('bad frame_id in the header')
+        frame = bytes(data[pos : pos + length - 1]).decode('utf-8', errors='replace')
+        pos += length
+        pos += (-(pos - 4)) % 8
+        pose = struct.unpack_from(e + '7d', data, pos)
+        if pos + 56 != len(data):
+            raise CdrError(f'{len(data)} bytes, expected {pos + 56}')
+    except struct.error as exc:
+        raise CdrError(f'truncated PoseStamped ({len(data)} bytes): {exc}') from None
+    return int(sec) * 1_000_000_000 + int(nanosec), frame, pose
+
+
+def twist_to_cdr(u) -> bytes:
+    """A serialized geometry_msgs/Twist of the velocity ``u [m]`` (linear; angular zero)."""
+    return CDR_LE + struct.pack('<6d', *_command_linear(u), 0.0, 0.0, 0.0)
+
+
+def twist_fields_from_cdr(data: bytes, fields: Sequence[int]) -> np.ndarray:
+    """``u`` float64: the entries ``fields`` of (linear.x, .y, .z, angular.x, .y, .z) of a
+    serialized geometry_msgs/Twist (no header, so no stamp).
+
+    Raises:
+        CdrError: unknown encapsulation or fewer than 48 bytes after it.
+    """
+    if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+        raise CdrError(f'unknown CDR encapsulation {bytes(data[:4]).hex()}')
+    if len(data) < 52:
+        raise CdrError(f'truncated Twist ({len(data)} bytes, expected 52)')
+    vector = struct.unpack_from(('<' if data[1] == 1 else '>') + '6d', data, 4)
+    return np.array([vector[i] for i in fields], dtype=np.float64)

@@ -1,6 +1,8 @@
 """The ``recorder`` executable: every robot's odometry into a trajectory file.
 
-Subscribes to ``robot_<i>/odom`` for robots 0 .. n-1 and to ``simulator/status``; publishes
+Subscribes to ``robot_<i>/odom`` for robots 0 .. n-1 (with a ``fleet`` file: each fleet robot's
+state topic; from poses the velocities are the agents' estimates,
+:class:`knode_swarm_ros.logic.contract.pose.PoseStates`) and to ``simulator/status``; publishes
 ``recorder/status`` (JSON: ready once every robot was heard, ``saved`` at the end),
 ``recorder/progress`` (std_msgs/Int64, the newest step up to which every frame is complete:
 the simulator's lockstep flow control) and live ``recorder/avd`` / ``recorder/amd``
@@ -16,7 +18,6 @@ import sys
 import time
 from functools import partial
 
-from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -33,15 +34,21 @@ from knode_swarm_ros.logic.common import (
     RECORDER_STATUS_TOPIC,
     SIMULATOR_STATUS_TOPIC,
     ConfigError,
-    is_robot_frame,
-    odom_topic,
     parse_status,
     status_json,
 )
+from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet
+from knode_swarm_ros.logic.contract.pose import PoseStates
 from knode_swarm_ros.logic.recorder import FrameCollector, swarm_metrics
 from knode_swarm_ros.logic.reporting import Throttle
 from knode_swarm_ros.nodes.common import qos
-from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES, CdrError, odom_from_cdr
+from knode_swarm_ros.nodes.common.conversions import (
+    STATE_MESSAGES,
+    TWIST_FRAMES,
+    CdrError,
+    odom_from_cdr,
+    pose_from_cdr,
+)
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
 
@@ -118,7 +125,19 @@ class RecorderNode(Node):
             'states stamped more than this many seconds ahead of the clock are dropped',
             float_range=(0.0, 86_400.0),
         )
+        fleet_file = declare(
+            self,
+            'fleet',
+            '',
+            "fleet file: record each fleet robot's state topic (overrides 'robots'; empty: robot_<i>/odom)",
+        )
         check_overrides(self, sys.argv)
+        self.fleet = load_fleet(fleet_file) if fleet_file else default_fleet(range(robots))
+        robots = len(self.fleet.robots)
+        self.rids = self.fleet.ids  # index r records the fleet's r-th robot (ascending ids)
+        self.poses = (
+            PoseStates(spec, self.fleet.state.velocity_window) if self.fleet.state.type == 'pose' else None
+        )
         if not self.output:
             raise ConfigError("parameter 'output' is required: pass -p output:=/path/to/run.npz")
         if not self.output.endswith('.npz'):
@@ -147,9 +166,12 @@ class RecorderNode(Node):
         self.progress_pub = self.create_publisher(Int64, RECORDER_PROGRESS_TOPIC, qos.PROGRESS)
         self.avd_pub = self.create_publisher(Float64, AVD_TOPIC, qos.METRICS)
         self.amd_pub = self.create_publisher(Float64, AMD_TOPIC, qos.METRICS)
+        state_type = STATE_MESSAGES[self.fleet.state.type]
         self.subs = [
-            self.create_subscription(Odometry, odom_topic(r), partial(self._on_odom, r), qos.ODOM, raw=True)
-            for r in range(robots)
+            self.create_subscription(
+                state_type, self.fleet.state_topic(rid), partial(self._on_odom, r), qos.ODOM, raw=True
+            )
+            for r, rid in enumerate(self.rids)
         ]  # serialized bytes: see conversions.odom_from_cdr
         self.create_subscription(String, SIMULATOR_STATUS_TOPIC, self._on_sim_status, qos.STATUS)
         self.create_timer(0.5, self._on_timer, clock=wall)
@@ -159,11 +181,15 @@ class RecorderNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, robot: int, data: bytes) -> None:
         try:
-            stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
+            if self.poses is not None:
+                stamp, _, pose = pose_from_cdr(data)
+                z = self.poses.state(robot, stamp, pose[:3], pose[3:])
+            else:
+                stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
         except CdrError:
             self.frames.counters['malformed'] += 1
             return
-        if not is_robot_frame(frame, robot):
+        if self.poses is None and not self.fleet.owns_frame(frame, self.rids[robot]):
             self.frames.counters['unknown_id'] += 1
             return
         # The clock is a reference only when it is the simulation's (use_sim_time, as the swarm runs it).
@@ -287,6 +313,10 @@ class RecorderNode(Node):
             'counters': dict(self.frames.counters),
             **info,
         }
+        if self.fleet.path:
+            meta.update(self.fleet.meta())
+        if self.poses is not None:  # the velocities are estimates, as the agents heard them
+            meta['velocity_estimator'] = self.fleet.state.velocity_window
         save_trajectories(self.output, states[None], self.dt * info['frame_every'], self.scenario, meta)
         self.saved_path = self.output
         if self.bag:

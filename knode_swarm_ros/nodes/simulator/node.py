@@ -1,6 +1,8 @@
 """The ``simulator`` executable: integrates the swarm and publishes every robot's state.
 
-Publishes ``robot_<i>/odom`` for robots 0 .. n-1, ``/clock`` (the simulated time; every other
+Publishes ``robot_<i>/odom`` for robots 0 .. n-1 (with a ``fleet`` file: each fleet robot's
+state topic and type, PoseStamped with optional seeded position noise when the fleet gives
+poses), ``/clock`` (the simulated time; every other
 node runs with ``use_sim_time``), ``markers`` (RViz) and ``simulator/status`` (JSON: phase,
 step, readiness); subscribes to each robot's command and to the agents' and the recorder's
 status. The physics and the lockstep bookkeeping live in :class:`SwarmSim`.
@@ -16,8 +18,8 @@ import sys
 import time
 from functools import partial
 
+import numpy as np
 from geometry_msgs.msg import AccelStamped, TwistStamped
-from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
@@ -35,11 +37,10 @@ from knode_swarm_ros.logic.common import (
     RECORDER_STATUS_TOPIC,
     SIMULATOR_STATUS_TOPIC,
     ConfigError,
-    agent_status_topic,
-    odom_topic,
     parse_status,
     status_json,
 )
+from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet
 from knode_swarm_ros.logic.reporting import write_json_report
 from knode_swarm_ros.logic.simulator.run_phases import LifecycleConfig, SimLifecycle
 from knode_swarm_ros.logic.simulator.swarm_sim import (
@@ -48,13 +49,18 @@ from knode_swarm_ros.logic.simulator.swarm_sim import (
     initial_state,
     initial_state_from_file,
     make_ground_truth,
+    setpoint_acceleration,
 )
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
+    COMMAND_MESSAGES,
+    STATE_MESSAGES,
     CdrError,
     command_fields_from_cdr,
     fields_to_cdr,
+    pose_to_cdr,
     time_msg,
+    twist_fields_from_cdr,
 )
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
@@ -235,8 +241,25 @@ class SimulatorNode(Node):
             True,
             'exit after the last step (otherwise keep publishing the final state until stopped)',
         )
+        fleet_file = declare(
+            self,
+            'fleet',
+            '',
+            "fleet file: publish each fleet robot's state topic and type, take its command topic and "
+            "type (overrides 'robots'; empty: robot_<i>, Odometry)",
+        )
+        self.pose_noise = declare(
+            self,
+            'pose_noise',
+            0.0,
+            'fleet with poses: standard deviation of the position noise per axis in metres (seeded by seed)',
+            float_range=(0.0, 100.0),
+        )
         robot_model, robot_params = declare_robot_model(self)
         check_overrides(self, sys.argv)
+        fleet = load_fleet(fleet_file) if fleet_file else None
+        if fleet is not None:
+            robots = len(fleet.robots)
 
         if init:
             z0, path, traj = initial_state_from_file(init, scenario, robots)
@@ -265,6 +288,14 @@ class SimulatorNode(Node):
         self.spec = spec
         self.mode = mode
         self.n = self.sim.n
+        self.fleet = fleet or default_fleet(range(self.n))
+        if len(self.fleet.robots) != self.n:
+            raise ConfigError(
+                f'the fleet {self.fleet.path} has {len(self.fleet.robots)} robots, the initial state {self.n}'
+            )
+        self.rids = self.fleet.ids  # robot index r is the fleet's r-th robot (ascending ids)
+        self.poses = self.fleet.state.type == 'pose'
+        self._noise = np.random.default_rng([int(seed), 1]) if self.poses and self.pose_noise > 0 else None
         self.d_cr = d_cr
         self.publish_every = 1 if mode == 'lockstep' else max(1, int(round(1.0 / (publish_rate * dt))))
         self.meta = {
@@ -279,6 +310,8 @@ class SimulatorNode(Node):
             'robot_model': robot_model,
             **origin,
         }
+        if fleet is not None:
+            self.meta.update(fleet=fleet.path, pose_noise=self.pose_noise, **fleet.meta())
 
         self.finished = Future()
         self.exit_code = EXIT_OK
@@ -304,30 +337,48 @@ class SimulatorNode(Node):
         )
 
         wall = Clock(clock_type=ClockType.STEADY_TIME)
-        self.odom_pubs = [self.create_publisher(Odometry, odom_topic(r), qos.ODOM) for r in range(self.n)]
+        state_type = STATE_MESSAGES[self.fleet.state.type]
+        self.odom_pubs = [
+            self.create_publisher(state_type, self.fleet.state_topic(rid), qos.ODOM) for rid in self.rids
+        ]
         self.clock_pub = self.create_publisher(ClockMsg, CLOCK_TOPIC, qos.CLOCK)
         self.status_pub = self.create_publisher(String, SIMULATOR_STATUS_TOPIC, qos.STATUS)
         self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, qos.MARKERS)
         wire = self.sim.robots.wire
         self.command_fields = wire.fields
+        command = self.fleet.command
+        self.command_type = (
+            'policy' if command.interface == 'unicycle' else self.fleet.command_type(wire.kind)
+        )
+        self.setpoints = command.interface == 'velocity_setpoint'
+        if self.setpoints and (spec.command != 'acceleration' or robot_model != 'double_integrator'):
+            raise ConfigError(
+                f'the fleet {self.fleet.path} sends velocity setpoints: the simulator models them on '
+                'double-integrator robots of an acceleration scenario only'
+            )
         if gt is None:
             # raw=True: serialized bytes read by conversions.command_fields_from_cdr (no message objects)
+            msg_type = (
+                _COMMAND_MESSAGES[wire.kind]
+                if self.command_type == 'policy'
+                else COMMAND_MESSAGES[self.command_type]
+            )
             self.cmd_subs = [
                 self.create_subscription(
-                    _COMMAND_MESSAGES[wire.kind],
-                    wire.topic(r),
+                    msg_type,
+                    wire.topic(r) if fleet is None else self.fleet.command_topic(rid, wire.kind),
                     partial(self._on_command, r),
                     qos.COMMAND,
                     raw=True,
                 )
-                for r in range(self.n)
+                for r, rid in enumerate(self.rids)
             ]
         if self.wait_for_agents:
             self.agent_subs = [
                 self.create_subscription(
-                    String, agent_status_topic(r), partial(self._on_agent_status, r), qos.STATUS
+                    String, self.fleet.status_topic(rid), partial(self._on_agent_status, r), qos.STATUS
                 )
-                for r in range(self.n)
+                for r, rid in enumerate(self.rids)
             ]
         if self.wait_for_recorder:
             self.create_subscription(String, RECORDER_STATUS_TOPIC, self._on_recorder_status, qos.STATUS)
@@ -384,10 +435,30 @@ class SimulatorNode(Node):
     def publish_frame(self) -> None:
         ns = self.sim.stamp_ns
         robots = self.sim.robots
-        for r, pub in enumerate(self.odom_pubs):
-            # serialized directly: the bytes rclpy would make of the Odometry, without its conversion
-            pub.publish(fields_to_cdr(r, ns, *robots.odom_fields(r), self.frame_id))
+        if self.poses:
+            self._publish_poses(ns)
+        else:
+            for r, pub in enumerate(self.odom_pubs):
+                # serialized directly: the bytes rclpy would make of the Odometry, without its conversion
+                rid = self.rids[r]
+                pub.publish(
+                    fields_to_cdr(rid, ns, *robots.odom_fields(r), self.frame_id, self.fleet.frame(rid))
+                )
         self.clock_pub.publish(ClockMsg(clock=time_msg(ns)))
+
+    def _publish_poses(self, ns: int) -> None:
+        """Motion capture: every robot's PoseStamped, its position noisy when ``pose_noise`` > 0."""
+        fields = [self.sim.robots.odom_fields(r) for r in range(self.n)]
+        noise = (
+            self._noise.normal(0.0, self.pose_noise, (self.n, 3))
+            if self._noise is not None
+            else np.zeros((self.n, 3))
+        )
+        dims = self.spec.dimensions
+        for r, pub in enumerate(self.odom_pubs):
+            position = np.array(fields[r][0], dtype=np.float64)
+            position[:dims] += noise[r, :dims]  # a 2D robot's z stays 0
+            pub.publish(pose_to_cdr(ns, position, fields[r][1], self.frame_id))
 
     def publish_status(self) -> None:
         self.status_pub.publish(String(data=status_json(**self.life.status_fields())))
@@ -399,10 +470,15 @@ class SimulatorNode(Node):
     # --- callbacks -----------------------------------------------------------------
     def _on_command(self, robot: int, data: bytes) -> None:
         try:
-            ns, u = command_fields_from_cdr(data, self.command_fields)
+            if self.command_type == 'twist':  # no header: taken as the command of the current step
+                ns, u = self.sim.stamp_ns, twist_fields_from_cdr(data, self.command_fields)
+            else:
+                ns, u = command_fields_from_cdr(data, self.command_fields)
         except CdrError as exc:
             self.life.on_malformed_command(robot, str(exc))
             return
+        if self.setpoints:  # a velocity loop reaching v_sp within one step: u = (v_sp - v) / dt
+            u = setpoint_acceleration(u, self.sim.states[robot, self.spec.velocity], self.sim.dt)
         self.life.on_command(robot, ns, u, time.monotonic())
 
     def _on_agent_status(self, robot: int, msg: String) -> None:

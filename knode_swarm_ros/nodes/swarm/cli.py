@@ -139,6 +139,27 @@ def build_parser() -> argparse.ArgumentParser:
         metavar='ADDRESS',
         help="the address the monitor's page binds (default 127.0.0.1, this machine only; e.g. 0.0.0.0)",
     )
+    p.add_argument(
+        '--fleet',
+        metavar='FLEET.yaml',
+        help="run the fleet file's robots (names, ids, state and command topics and types; docs/ros.md, "
+        "'Your own fleet'): the simulator speaks exactly the fleet's topics, so a run rehearses the deployment",
+    )
+    p.add_argument(
+        '--pose-noise',
+        type=float,
+        default=0.0,
+        metavar='SIGMA',
+        help='--fleet with poses: position noise per axis of the simulated motion capture, metres (seeded by '
+        '--seed); default 0',
+    )
+    p.add_argument(
+        '--pose-rate',
+        type=float,
+        metavar='HZ',
+        help='--fleet with poses, realtime: the motion capture rate in simulated Hz (at most 1 / dt of the '
+        'policy, the rate the simulator steps at); default --rate',
+    )
     add_link_arguments(p)
     robot_model.add_arguments(p)
     p.add_argument(

@@ -59,6 +59,11 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
         'stop_limit': float(plan.policy_meta.get('command_limit') or 0.0),
     }
     sim.update(plan.robot_model.get('simulator', {}))
+    fleet = getattr(plan, 'fleet', '')
+    if fleet:  # every node speaks the fleet's names, topics and types
+        sim.update(fleet=fleet, pose_noise=float(plan.pose_noise))
+        if plan.pose_rate is not None:
+            sim['publish_rate'] = float(plan.pose_rate)
     rec = {
         'scenario': plan.scenario,
         'robots': plan.robots,
@@ -67,6 +72,8 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
         'bag': plan.bag,
         'use_sim_time': True,
     }
+    if fleet:
+        rec['fleet'] = fleet
     files = {plan.run_dir / 'simulator.yaml': sim, plan.run_dir / 'recorder.yaml': rec}
     python = [sys.executable, '-m']
     out = {
@@ -106,6 +113,8 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
         }
         agent['managed'] = bool(plan.managed)
         agent.update(plan.robot_model.get('agent', {}))
+        if fleet:
+            agent['fleet'] = fleet
         files[plan.run_dir / 'agent.yaml'] = agent
         params = str(plan.run_dir / 'agent.yaml')
         if plan.managed:  # configures every agent, then activates them together, then exits 0
@@ -119,7 +128,13 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
             ]
         out.update(
             hosting.agent_commands(
-                plan.robots, plan.agents_per_process, python, PACKAGE, params, plan.run_dir
+                plan.robots,
+                plan.agents_per_process,
+                python,
+                PACKAGE,
+                params,
+                plan.run_dir,
+                getattr(plan, 'fleet_ids', None),
             )
         )
     return out, files

@@ -84,18 +84,20 @@ def split(ids: Sequence[int], per_process: int) -> List[List[int]]:
 
 
 def agent_commands(
-    robots: int, per_process: int, python: List[str], package: str, params: str, run_dir
+    robots: int, per_process: int, python: List[str], package: str, params: str, run_dir, robot_ids=None
 ) -> Dict[str, List[str]]:
-    """The agents' command lines by process name: ``agent_<i>`` (K = 1) or ``agents_<a>_<b>``."""
+    """The agents' command lines by process name: ``agent_<i>`` (K = 1) or ``agents_<a>_<b>``;
+    ``robot_ids`` (a fleet's, ascending) instead of ``0 .. robots - 1``."""
     from .commands import param_scalar  # the YAML scalar the ``-p`` flag expects
 
     out: Dict[str, List[str]] = {}
-    for group in split(range(robots), per_process):
+    for group in split(list(robot_ids) if robot_ids else range(robots), per_process):
         if per_process == 1:
             name, node, ids = f'agent_{group[0]}', 'agent', f'id:={group[0]}'
         else:
             name, node = f'agents_{group[0]}_{group[-1]}', 'agents'
-            ids = f'ids:={group[0]}..{group[-1]}'
+            contiguous = list(group) == list(range(group[0], group[-1] + 1))
+            ids = f'ids:={group[0]}..{group[-1]}' if contiguous else f'ids:={param_scalar(list(group))}'
         out[name] = python + [
             f'{package}.nodes.{node}',
             '--ros-args',

@@ -12,7 +12,7 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 from knode_swarm_ros.logic.common import ConfigError
 from knode_swarm_ros.nodes.agent.link import link_parameters
@@ -86,6 +86,10 @@ class Plan:
     keep_logs: bool = False
     monitor_port: Optional[int] = None  # None: no monitor; 0: any free port
     monitor_host: str = '127.0.0.1'
+    fleet: str = ''  # absolute path of the fleet file, or ''
+    fleet_ids: List[int] = field(default_factory=list)  # its robots' ids (ascending), or []
+    pose_noise: float = 0.0
+    pose_rate: Optional[float] = None  # realtime: the state publishing rate (None: rate)
 
 
 def scenario_name(scenario: str) -> str:
@@ -252,6 +256,42 @@ def _rate(args: argparse.Namespace, dt: float) -> float:
     return 1.0 / dt if args.mode == 'realtime' and not args.ground_truth else DEFAULT_RATE
 
 
+def _fleet(args: argparse.Namespace, scenario: str, dt: float):
+    """``(path, ids)`` of ``--fleet`` (``('', [])`` without), checked against the run's scenario
+    and the pose flags."""
+    from knode_swarm_ros.core.scenarios import get_scenario
+    from knode_swarm_ros.logic.contract.fleet import load_fleet
+
+    noise, rate = getattr(args, 'pose_noise', 0.0) or 0.0, getattr(args, 'pose_rate', None)
+    if not getattr(args, 'fleet', None):
+        if noise or rate is not None:
+            raise ConfigError('--pose-noise and --pose-rate need --fleet (a fleet whose state type is pose)')
+        return '', []
+    path = os.path.abspath(args.fleet)
+    fleet = load_fleet(path)
+    spec = get_scenario(scenario)
+    fleet.check_scenario(spec.command, spec.velocity is not None)
+    if (noise or rate is not None) and fleet.state.type != 'pose':
+        raise ConfigError(
+            f'--pose-noise / --pose-rate: the fleet {args.fleet} gives {fleet.state.type}, not poses'
+        )
+    if not (noise >= 0 and math.isfinite(noise)):
+        raise ConfigError(f'--pose-noise must be >= 0 metres, got {noise}')
+    if rate is not None and not (rate > 0 and rate * dt <= 1.0 + 1e-9 and args.mode == 'realtime'):
+        raise ConfigError(
+            f'--pose-rate {rate:g}: realtime only, and at most 1 / dt = {1.0 / dt:g} Hz (the simulator steps '
+            'at the policy dt)'
+        )
+    if args.robots is not None and args.robots != len(fleet.robots):
+        raise ConfigError(f'--robots {args.robots} but the fleet {args.fleet} has {len(fleet.robots)} robots')
+    for flag, on in (('--managed', args.managed), ('--monitor', getattr(args, 'monitor', None) is not None)):
+        if on:
+            raise ConfigError(
+                f'{flag} does not take a fleet yet (it reads robot_<id> topics); drop --fleet or {flag}'
+            )
+    return path, fleet.ids
+
+
 def plan_run(args: argparse.Namespace) -> Plan:
     """Check the arguments and the input files; raise :class:`ConfigError` naming the problem.
 
@@ -266,7 +306,12 @@ def plan_run(args: argparse.Namespace) -> Plan:
         raise ConfigError(f'--record {args.record}: the trajectory file must end with .npz')
     _check_output_folder('--record', args.record, record.parent)
     scenario, dt, d_cr, policy_path, meta = _policy(args)
+    fleet_path, fleet_ids = _fleet(args, scenario, dt)
+    if fleet_ids and args.robots is None and not args.init:
+        args = argparse.Namespace(**{**vars(args), 'robots': len(fleet_ids)})
     robots, init = _robots_and_init(args, scenario)
+    if fleet_ids and robots != len(fleet_ids):
+        raise ConfigError(f'--init has {robots} robots but the fleet {args.fleet} has {len(fleet_ids)}')
     per_process = hosting.resolve_agents_per_process(args.agents_per_process, robots)
     if args.managed and not args.ground_truth:
         if args.agents_per_process > 1:
@@ -360,4 +405,8 @@ def plan_run(args: argparse.Namespace) -> Plan:
         keep_logs=bool(args.keep_logs),
         monitor_port=getattr(args, 'monitor', None),
         monitor_host=getattr(args, 'monitor_host', None) or '127.0.0.1',
+        fleet=fleet_path,
+        fleet_ids=fleet_ids,
+        pose_noise=float(getattr(args, 'pose_noise', 0.0) or 0.0),
+        pose_rate=getattr(args, 'pose_rate', None),
     )
