@@ -31,6 +31,7 @@ from knode_swarm_ros.core.cli import parse_set
 from knode_swarm_ros.core.errors import ConfigError, KnodeError
 from knode_swarm_ros.core.policy_meta import PolicyError, check_meta, parse_meta, read_pt_meta
 from knode_swarm_ros.core.trajectory import TrajectoryError, TrajectoryFile, load_trajectories
+from knode_swarm_ros.nodes.common import conversions as cdr  # rclpy: required, never skipped
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICIES = ROOT / 'knode_swarm_ros' / 'policies'
@@ -73,8 +74,6 @@ def _tmpdir():
 
 
 # --- CDR: Odometry and commands as they come off the wire ----------------------------------------
-
-cdr = pytest.importorskip('knode_swarm_ros.nodes.common.conversions')
 
 
 def _odom_bytes(endian, sec, nanosec, frame, child, pose, twist, tail_len):
@@ -355,7 +354,8 @@ def test_arbitrary_bytes_as_a_policy_file_are_refused(data, magic):
 
 @pytest.fixture(scope='module')
 def scripted():
-    torch = pytest.importorskip('torch')
+    import torch
+
     return {name: torch.jit.load(str(POLICIES / f'{name}.pt')) for name in SCENARIOS}
 
 
@@ -381,7 +381,8 @@ def test_torchscript_with_a_hostile_knode_json_loads_or_is_refused(scripted, met
 @budget(25)
 @given(hostile_meta() | hostile_text, st.booleans(), st.none() | st.text(max_size=64), st.booleans())
 def test_an_onnx_twin_whose_metadata_disagree_is_refused(meta, with_pt, source, keep_source):
-    onnx = pytest.importorskip('onnx')
+    import onnx
+
     from knode_swarm_ros.core.policy_runtime import META_KEY, SOURCE_KEY, load_onnx_policy
 
     model = onnx.load(str(POLICIES / 'flock2d.onnx'))
@@ -446,7 +447,6 @@ def _write_bag(bag, storage, stamps, values, type_name='nav_msgs/msg/Odometry'):
 def good_bags(tmp_path_factory):
     """``{suffix: bytes}`` of the storage file of a small valid bag of each storage (2 robots,
     20 frames at 20 Hz)."""
-    pytest.importorskip('rosbags')
     stamps = [10**9 + 50_000_000 * (j // 2) for j in range(40)]
     out = {}
     for storage in ('mcap', 'sqlite3'):
@@ -516,7 +516,6 @@ def test_a_damaged_bag_imports_or_is_refused_without_writing(good_bags, suffix, 
     st.sampled_from(['mcap', 'sqlite3']),
 )
 def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps, values, type_name, storage):
-    pytest.importorskip('rosbags')
     with _tmpdir() as tmp:
         bag = _write_bag(Path(tmp) / 'bag', storage, stamps, values, type_name)
         _import(bag, Path(tmp) / 'out.npz')
@@ -608,7 +607,8 @@ AGENT_PARAMS = [
 
 @pytest.fixture(scope='module')
 def ros_context():
-    rclpy = pytest.importorskip('rclpy')
+    import rclpy
+
     contexts = []
     yield rclpy, contexts
     for ctx in contexts:
