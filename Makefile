@@ -14,7 +14,7 @@ TORCH_BUILD ?= cpu
 ROS_ENV = ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
           AMENT_PREFIX_PATH="$(VENV_PREFIX)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}"
 
-.PHONY: all venv lint test demo demo-offline bench mutation clean distclean
+.PHONY: all venv lint test fuzz demo demo-offline bench mutation clean distclean
 
 all: test
 
@@ -59,6 +59,11 @@ bench: $(VENV)/.installed
 	  [ -f "$$f" ] || continue; found=1; echo "== $$f"; \
 	  $(ROS_ENV) PYTHONPATH="$(CURDIR)$${PYTHONPATH:+:$$PYTHONPATH}" $(PY) "$$f"; \
 	done; [ $$found = 1 ] || echo "no benchmarks under bench/"
+
+# The suite's fuzz tests (tests/test_fuzz.py) with the `fuzz` hypothesis profile: 10,000 generated
+# inputs per reader and a fresh seed each run instead of the suite's fixed one (docs/testing.md, "Fuzzing").
+fuzz: $(VENV)/.installed
+	$(ROS_ENV) HYPOTHESIS_PROFILE=fuzz $(PY) -m pytest -q -rs tests/test_fuzz.py $(PYTEST_ARGS)
 
 # Mutation testing (not part of CI; ~6300 mutants, hours on 2 cores, see docs/testing.md): cosmic-ray over
 # the core and the *_logic modules, in a copy under out/mutation. MUTATION_ARGS: --only, --sample, --seed.

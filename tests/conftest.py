@@ -157,3 +157,22 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
             else ('NOT ALLOWED in CI: fails the run' if strict else 'not allowed in CI')
         )
         terminalreporter.write_line(f'{nodeid}: {reason} [{verdict}]')
+
+
+# --- hypothesis profiles (tests/test_fuzz.py; docs/testing.md, "Fuzzing") ---------------------------
+# `suite` (the default): a fixed seed, so a failure in CI reproduces; each test sets its own small
+# budget. `fuzz` (HYPOTHESIS_PROFILE=fuzz, `make fuzz`): the same seed-free search, 10,000
+# examples per reader (tests/test_fuzz.py reads the profile's name). No example database: a
+# failure is kept as an @example in the test instead.
+try:
+    from hypothesis import settings as _hypothesis_settings
+except ImportError:  # hypothesis is a dev dependency; without it test_fuzz.py fails to import
+    pass
+else:
+    _hypothesis_settings.register_profile(
+        'suite', derandomize=True, deadline=None, database=None, print_blob=True
+    )
+    _hypothesis_settings.register_profile(
+        'fuzz', derandomize=False, deadline=None, database=None, print_blob=True
+    )
+    _hypothesis_settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'suite'))

@@ -1,6 +1,7 @@
 """Node processes for the tests that start ROS nodes as children and stop them by signal.
 
-``start`` runs ``python ARGV`` with the test's environment (a copy: the ros-jazzy wheels'
+``start`` runs ``python ARGV`` as the launcher starts a node (SIGINT and SIGTERM blocked until its
+quiet handler is in) with the test's environment (a copy: the ros-jazzy wheels'
 LD_LIBRARY_PATH / _ROS_WHEELS_BOOTSTRAP_COMPLETE pair travels together, conftest.py), ``wait_for``
 polls its log for a line, ``stop`` sends a signal (or none) and waits. ``WAIT_S`` bounds every
 wait generously: only a hang fails, never a slow machine.
@@ -11,6 +12,8 @@ import subprocess
 import sys
 import time
 
+from knode_swarm_ros.nodes.common.startup import block_stop_signals
+
 WAIT_S = 120
 
 
@@ -18,7 +21,12 @@ def start(argv, log):
     """``python *argv`` in its own session, stdout and stderr to the open file ``log``."""
     env = dict(os.environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
     return subprocess.Popen(
-        [sys.executable, *argv], env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+        [sys.executable, *argv],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        preexec_fn=block_stop_signals,  # as the launcher does: a signal waits for the quiet handler
     )
 
 

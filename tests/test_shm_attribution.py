@@ -49,3 +49,32 @@ def test_held_files_are_the_locked_ones_and_what_stays_after_the_owner_is_the_le
     ]  # there before: not its
     # without a domain every port counts whole
     assert 'fastrtps_port7000' in shm.shm_left_by(held)
+
+
+def test_cleanup_removes_the_shared_ports_a_killed_process_left_even_from_before_the_run(
+    tmp_path, monkeypatch
+):
+    """fastrtps_port7000/7001 (opened by every domain's participants) stay behind after any of
+    their users is killed, so they are usually there before the launcher's run: the cleanup judges
+    them by their lock alone. Before, they were kept because they were not new."""
+    monkeypatch.setattr(shm, 'SHM_DIR', tmp_path)
+    for name in ('fastrtps_port7000', 'sem.fastrtps_port7000_mutex', 'fastrtps_port7001'):
+        (tmp_path / name).write_bytes(b'')  # an earlier run's kill: no lock file left
+    _group(tmp_path, 'fastrtps_port7001')  # ... and one a live listener holds
+    before = shm.shm_snapshot()
+    _group(tmp_path, 'fastrtps_0123456789abcdef')  # this run's killed process: new, unlocked
+    with open(tmp_path / 'fastrtps_port7001_el', 'ab') as live:
+        fcntl.flock(live, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        removed = shm.shm_cleanup(before)
+        assert sorted(removed) == [
+            'fastrtps_0123456789abcdef',
+            'fastrtps_0123456789abcdef_el',
+            'fastrtps_port7000',
+            'sem.fastrtps_0123456789abcdef_mutex',
+            'sem.fastrtps_port7000_mutex',
+        ]
+        assert sorted(os.listdir(tmp_path)) == [
+            'fastrtps_port7001',
+            'fastrtps_port7001_el',
+            'sem.fastrtps_port7001_mutex',
+        ]

@@ -72,7 +72,7 @@ def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
             raise ConfigError(f'--set {item!r}: expected SECTION.KEY=VALUE')
         try:
             parsed = yaml.safe_load(value)
-        except yaml.YAMLError as exc:
+        except (yaml.YAMLError, ValueError, RecursionError) as exc:  # integers of > 4300 digits, deep nesting
             raise ConfigError(f'--set {item!r}: the value is not valid YAML ({exc})') from None
         out[key.strip()] = _number(parsed)
     return out

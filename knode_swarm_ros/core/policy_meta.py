@@ -89,7 +89,12 @@ def _is_int(v) -> bool:
 
 
 def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an integer beyond float's range (JSON has no limit)
+        return False
 
 
 def check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) -> None:
@@ -187,7 +192,7 @@ def parse_meta(where: str, text: Union[str, bytes, None]) -> Dict[str, Any]:
         raise PolicyError(f'{where}: no knode.json metadata')
     try:
         return json.loads(text)
-    except json.JSONDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # also integers of > 4300 digits, brackets nested too deep
         raise PolicyError(f'{where}: knode.json is not valid JSON ({exc})') from None
 
 

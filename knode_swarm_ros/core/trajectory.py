@@ -8,9 +8,11 @@ object, see :func:`~.scenarios.scenario_ref`) and ``meta`` (a JSON string).
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, Optional, Tuple, Union
@@ -94,6 +96,43 @@ def _scalar(where: str, name: str, value: np.ndarray, what: str, kinds: str):
     return str(value) if kinds == 'U' else float(value)
 
 
+def _check_declared_size(where: str, data, name: str) -> None:
+    """Refuse a member whose .npy header declares more bytes than the member holds, before numpy
+    allocates the declared array (a few header bytes could otherwise claim terabytes)."""
+    member = f'{name}.npy'
+    if member not in data.zip.namelist():
+        return  # numpy reports it
+    with data.zip.open(member) as fh:
+        fmt = np.lib.format
+        version = fmt.read_magic(fh)
+        read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+        shape, _, dtype = read_header(fh)
+        if dtype.hasobject:
+            return  # refused by allow_pickle=False
+        declared = math.prod(shape) * dtype.itemsize
+        if declared > data.zip.getinfo(member).file_size - fh.tell():
+            raise TrajectoryError(
+                f'{where}: field {name!r} declares shape {shape} of {dtype} ({declared} bytes), '
+                'more than the file holds'
+            )
+
+
+def _check_split(where: str, split: Any, count: int) -> None:
+    """``meta['split']`` (training reads it): absent, or ``train`` / ``test`` lists of indices into
+    the ``count`` trajectories."""
+    if not split:
+        return
+    if not isinstance(split, dict):
+        raise TrajectoryError(f"{where}: field 'meta': 'split' must be an object, got {type(split).__name__}")
+    for name in ('train', 'test'):
+        idx = split.get(name, [])
+        if not (isinstance(idx, list) and all(type(i) is int and 0 <= i < count for i in idx)):
+            raise TrajectoryError(
+                f"{where}: field 'meta': split {name!r} must be a list of trajectory indices "
+                f'0 .. {count - 1}, got {str(idx)[:80]}'
+            )
+
+
 def _resolve(where: str, scenario) -> Scenario:
     try:
         return get_scenario(scenario)
@@ -154,17 +193,18 @@ def load_trajectories(path: PathLike, scenario=None) -> TrajectoryFile:
             missing = [k for k in ('states', 'dt', 'scenario', 'meta') if k not in data.files]
             if missing:
                 raise TrajectoryError(f'{where}: missing field(s) {", ".join(missing)}')
+            _check_declared_size(where, data, 'states')
             states = np.asarray(data['states'], dtype=np.float64)
             dt = _scalar(where, 'dt', data['dt'], 'a number (seconds between frames)', 'fiu')
             name = _scalar(where, 'scenario', data['scenario'], 'a string', 'U')
             meta_text = _scalar(where, 'meta', data['meta'], 'a JSON string', 'U')
     except TrajectoryError:
         raise
-    except (OSError, ValueError, TypeError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, ValueError, TypeError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
         raise TrajectoryError(f'{where}: not a readable .npz trajectory file ({exc})') from None
     try:
         meta = json.loads(meta_text) if meta_text else {}
-    except json.JSONDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # also integers of > 4300 digits, brackets nested too deep
         raise TrajectoryError(f"{where}: field 'meta' is not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise TrajectoryError(f"{where}: field 'meta' must be a JSON object, got {type(meta).__name__}")
@@ -174,6 +214,7 @@ def load_trajectories(path: PathLike, scenario=None) -> TrajectoryFile:
             'or the whole scenario as a JSON object'
         )
     _validate(where, states, dt, name)
+    _check_split(where, meta.get('split'), states.shape[0])
     name = scenario_ref(name)
     if scenario is not None and get_scenario(name) != _resolve('expected scenario', scenario):
         raise TrajectoryError(f"{where}: field 'scenario' is {name!r}, expected {scenario_ref(scenario)!r}")

@@ -371,14 +371,19 @@ def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[s
     with open(path) as fh:
         try:
             raw = yaml.safe_load(fh) or {}
-        except yaml.YAMLError as exc:
+        except (yaml.YAMLError, ValueError, RecursionError) as exc:  # integers of > 4300 digits, deep nesting
             raise ConfigError(f'config file {path}: not valid YAML ({exc})') from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f'config file {path}: must be a mapping of sections, got {type(raw).__name__}')
     raw = copy.deepcopy(raw)
     for dotted, value in (overrides or {}).items():
         node = raw
         *parents, leaf = dotted.split('.')
-        for key in parents:
+        for depth, key in enumerate(parents):
             node = node.setdefault(key, {})
+            if not isinstance(node, dict):
+                where = '.'.join(parents[: depth + 1])
+                raise ConfigError(f'--set {dotted}: {where} is {node!r}, not a section')
         node[leaf] = value
     try:
         return normalise_config(raw)

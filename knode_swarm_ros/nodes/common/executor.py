@@ -27,6 +27,7 @@ from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, Con
 
 from . import exit_watchdog
 from .native_preload import preloading
+from .startup import STOP_SIGNALS
 
 __all__ = ['make_executor', 'spin_until', 'run_node', 'destroy_node']
 
@@ -95,6 +96,8 @@ class _Interrupts:
                 self._old[sig] = signal.signal(sig, handler)
             except ValueError:  # not the main thread (tests): leave the handlers alone
                 pass
+        if self._old:  # a node started with them blocked (startup.block_stop_signals) hears them now
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         return self
 
     def _note(self, signum, frame) -> None:

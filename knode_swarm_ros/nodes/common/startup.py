@@ -1,22 +1,28 @@
-"""Ctrl-C / SIGTERM while an executable is still importing: exit quietly with status 0.
+"""Ctrl-C / SIGTERM while an executable is still starting: exit quietly with status 0.
 
 Importing rclpy, the messages and torch takes a second or more; a signal then would print a
 KeyboardInterrupt traceback (from every process of a swarm) although nothing has been started
-that needs cleaning up: no ROS context, no DDS participant, no file. The ``nodes`` package calls
-:func:`quiet_until_running` when it is imported, which in a node executable happens before the
-node module is even compiled; :func:`executor.run_node` replaces the handlers before
-``rclpy.init``. Imports nothing heavy (this must be fast). What comes before the package import
-(interpreter start, site) is not covered: a SIGTERM there takes its default action (a silent
-end), a SIGINT may still print a KeyboardInterrupt.
+that needs cleaning up: no ROS context, no DDS participant, no file. Each executable's ``main``
+calls :func:`quiet_until_running` first; :func:`executor.run_node` replaces the handlers before
+``rclpy.init``. Imports nothing heavy (this must be fast).
+
+Before ``main`` runs, Python itself starts (site, the ros wheels' re-exec with their library
+path, the import of the package): a SIGINT there raises KeyboardInterrupt in code no module of
+this package can reach (a traceback, or "Fatal Python error: init_import_site"). A parent that
+starts a node (the launcher, the tests) therefore starts it with SIGINT and SIGTERM blocked
+(:func:`block_stop_signals` as ``preexec_fn``): a signal that arrives then stays pending, and
+:func:`quiet_until_running` unblocks it once its quiet handler is in. A node started by hand
+from a shell keeps that first window (Python's start, ~0.1 s).
 """
 
 import os
 import signal
 import sys
 
-__all__ = ['quiet_until_running', 'started_as_program']
+__all__ = ['STOP_SIGNALS', 'block_stop_signals', 'quiet_until_running', 'started_as_program']
 
-_PROGRAMS = ('agent', 'agents', 'simulator', 'recorder', 'monitor')
+_PROGRAMS = ('agent', 'agents', 'simulator', 'recorder', 'monitor', 'lifecycle_manager')
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def started_as_program() -> bool:
@@ -30,13 +36,22 @@ def started_as_program() -> bool:
     return os.path.basename(sys.argv[0] if sys.argv else '') in _PROGRAMS
 
 
+def block_stop_signals() -> None:
+    """Block SIGINT and SIGTERM in this thread: for a child between fork and exec, so that a
+    signal during its interpreter start waits for :func:`quiet_until_running` (the mask survives
+    exec; Python's start-up leaves it alone)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+
+
 def _leave(_signum, _frame) -> None:
     os._exit(0)  # nothing to clean up yet; no traceback
 
 
 def quiet_until_running() -> None:
     """Make SIGINT and SIGTERM end the process silently (status 0) until run_node takes over,
-    in a node executable only (idempotent)."""
+    in a node executable only (idempotent); then unblock them, so that one that arrived while
+    the parent had them blocked (:func:`block_stop_signals`) ends the process here."""
     if started_as_program():
         signal.signal(signal.SIGINT, _leave)
         signal.signal(signal.SIGTERM, _leave)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)

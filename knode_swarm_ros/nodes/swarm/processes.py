@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from ..common.startup import block_stop_signals
+
 __all__ = ['Child', 'Children', 'start_child', 'Interrupted', 'catches_signal']
 
 # SIGTERM first: the nodes treat it as Ctrl-C once running (the recorder saves), and a process
@@ -25,7 +27,9 @@ class Interrupted(Exception):
     """Ctrl-C / SIGTERM / SIGHUP reached the launcher (raised by Children.pump)."""
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def _child_setup() -> None:  # runs in the child between fork and exec
+    # A stop signal during the child's interpreter start waits for its quiet handler.
+    block_stop_signals()
     try:
         import ctypes
 
@@ -97,7 +101,7 @@ def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Pat
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         start_new_session=True,
-        preexec_fn=_die_with_parent,
+        preexec_fn=_child_setup,
         cwd=str(run_dir),
     )
     os.set_blocking(proc.stdout.fileno(), False)

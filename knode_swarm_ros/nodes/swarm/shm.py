@@ -17,9 +17,19 @@ import re
 from pathlib import Path
 from typing import List, Optional
 
-__all__ = ['SHM_DIR', 'shm_snapshot', 'shm_cleanup', 'shm_held_by', 'shm_left_by', 'lock_held']
+__all__ = [
+    'SHM_DIR',
+    'SHARED_PORTS',
+    'shm_snapshot',
+    'shm_cleanup',
+    'shm_held_by',
+    'shm_left_by',
+    'lock_held',
+]
 
 SHM_DIR = Path('/dev/shm')
+#: Ports outside every domain's range that all participants open (any domain, any user).
+SHARED_PORTS = ('fastrtps_port7000', 'fastrtps_port7001')
 _SHM_RE = re.compile(r'^(sem\.)?(fastrtps|fastdds)_')
 
 
@@ -42,7 +52,8 @@ def lock_held(path: Path) -> bool:
 
 
 def shm_cleanup(before: set) -> List[str]:
-    """Delete FastDDS files that appeared since ``before`` and that no live process holds.
+    """Delete FastDDS files that appeared since ``before`` and that no live process holds, and
+    the :data:`SHARED_PORTS` that no live process holds.
 
     A segment or port ``X`` comes with a lock file ``X_el`` (or ``X_sl``) that its live owner
     keeps locked, and a port with ``sem.X_mutex``. A group whose lock file is unlocked (its
@@ -59,13 +70,18 @@ def shm_cleanup(before: set) -> List[str]:
             bases.add(name[:-3])
         else:
             bases.add(name)
+    # The ports every domain's participants open stay behind whenever any of their users was
+    # killed, so they are usually there before the run already (another run's kill): judged by
+    # their lock alone, whoever created them.
+    now = shm_snapshot()
+    shared = {base for base in SHARED_PORTS if base in now or f'sem.{base}_mutex' in now}
     removed = []
-    for base in sorted(bases):
+    for base in sorted(bases | shared):
         locks = [SHM_DIR / f'{base}{tail}' for tail in ('_el', '_sl')]
         if any(lock.exists() and lock_held(lock) for lock in locks):
             continue  # a live process owns it
         for victim in (base, f'{base}_el', f'{base}_sl', f'sem.{base}_mutex'):
-            if victim in new:
+            if victim in new or (base in shared and victim in now):
                 try:
                     (SHM_DIR / victim).unlink()
                     removed.append(victim)

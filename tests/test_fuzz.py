@@ -1,0 +1,663 @@
+"""Property-based fuzzing of every reader and decoder (issue 31; docs/testing.md, "Fuzzing").
+
+The property, for each: the input is refused with a documented error (a :class:`KnodeError`
+subclass naming the input; exit status 2 from a command, with its output file absent) or read
+into a valid result; never another exception type, a hang or a partially written file.
+
+Budgets come from the hypothesis profile (tests/conftest.py): ``suite`` (the default: a fixed
+seed, a few dozen examples per reader, all of them together well under 60 s) or ``fuzz``
+(``HYPOTHESIS_PROFILE=fuzz``, ``make fuzz``: 10,000 examples per reader). Every bug the fuzzer
+found is kept as an ``@example`` of the test that found it.
+"""
+
+import contextlib
+import io
+import json
+import math
+import os
+import struct
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from knode_swarm_ros.core.cli import parse_set
+from knode_swarm_ros.core.errors import ConfigError, KnodeError
+from knode_swarm_ros.core.policy_meta import PolicyError, check_meta, parse_meta, read_pt_meta
+from knode_swarm_ros.core.trajectory import TrajectoryError, TrajectoryFile, load_trajectories
+from knode_swarm_ros.nodes.common import conversions as cdr  # rclpy: required, never skipped
+
+ROOT = Path(__file__).resolve().parents[1]
+POLICIES = ROOT / 'knode_swarm_ros' / 'policies'
+FUZZ = os.environ.get('HYPOTHESIS_PROFILE') == 'fuzz'
+
+
+def budget(suite: int):
+    """``suite`` examples in the suite, 10,000 under ``make fuzz`` (the profile's other settings)."""
+    return settings(
+        max_examples=10_000 if FUZZ else suite,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
+    )
+
+
+# --- strategies shared by several readers ---------------------------------------------------------
+
+SCENARIOS = ('flock2d', 'boids3d')
+floats = st.floats(allow_nan=True, allow_infinity=True)
+json_scalars = st.none() | st.booleans() | st.integers() | floats | st.text(max_size=20)
+json_values = st.recursive(
+    json_scalars,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=10), inner, max_size=4),
+    max_leaves=12,
+)
+# Text a hostile producer writes where JSON or YAML is expected: valid documents, near misses,
+# bracket towers (a recursive parser's depth), huge numbers.
+nested = st.integers(1, 2000).map(lambda n: '[' * n + ']' * n)
+nested_yaml = st.integers(1, 600).map(lambda n: '[' * n)  # pyyaml recurses ~3 frames a level, slowly
+huge_numbers = st.integers(300, 5000).map(lambda n: '1' + '0' * n)
+hostile_text = st.one_of(
+    st.text(max_size=200),
+    json_values.map(lambda v: json.dumps(v)),
+    nested,
+    huge_numbers,
+    st.sampled_from(['NaN', 'Infinity', '-Infinity', '{"a": NaN}', '"\\ud800"', '{', '[1,', '1e999']),
+)
+
+
+def _tmpdir():
+    return tempfile.TemporaryDirectory(prefix='knode-fuzz-')
+
+
+# --- CDR: Odometry and commands as they come off the wire ----------------------------------------
+
+
+def _odom_bytes(endian, sec, nanosec, frame, child, pose, twist, tail_len):
+    """A serialized Odometry with any stamp (int32 sec, uint32 nanosec), any frame ids and any
+    pose and twist doubles, cut to ``tail_len`` bytes when given."""
+    e = '<' if endian else '>'
+    buf = bytearray(b'\x00\x01\x00\x00' if endian else b'\x00\x00\x00\x00')
+    buf += struct.pack(e + 'iI', sec, nanosec)
+    for text in (frame, child):
+        raw = text.encode('utf-8', errors='surrogatepass') + b'\x00'
+        buf += bytes((-(len(buf) - 4)) % 4)
+        buf += struct.pack(e + 'I', len(raw)) + raw
+    buf += bytes((-(len(buf) - 4)) % 8)
+    buf += struct.pack(e + '7d', *pose) + bytes(8 * 36) + struct.pack(e + '6d', *twist) + bytes(8 * 36)
+    return bytes(buf if tail_len is None else buf[:tail_len])
+
+
+odom_bytes = st.builds(
+    _odom_bytes,
+    st.booleans(),
+    st.integers(-(2**31), 2**31 - 1),
+    st.integers(0, 2**32 - 1),
+    st.text(max_size=40),
+    st.text(max_size=40),
+    st.tuples(*[floats] * 7),
+    st.tuples(*[floats] * 6),
+    st.none() | st.integers(0, 800),
+)
+
+
+def _check_odom(data, scenario):
+    try:
+        ns, child, z = cdr.odom_from_cdr(data, scenario)
+    except cdr.CdrError:
+        return
+    assert isinstance(ns, int) and isinstance(child, str)
+    assert z.dtype == np.float64 and z.shape == (cdr.get_scenario(scenario).state_dim,)
+
+
+@budget(150)
+@given(st.binary(max_size=1200) | odom_bytes, st.sampled_from(SCENARIOS))
+def test_odometry_cdr_decodes_or_is_refused(data, scenario):
+    _check_odom(data, scenario)
+
+
+@budget(150)
+@given(odom_bytes, st.integers(0, 799), st.integers(0, 255), st.sampled_from(SCENARIOS))
+def test_odometry_cdr_with_a_flipped_byte_decodes_or_is_refused(data, at, byte, scenario):
+    mutated = bytearray(data)
+    if mutated:
+        mutated[at % len(mutated)] = byte
+    _check_odom(bytes(mutated), scenario)
+
+
+def _command_bytes(encapsulation, sec, nanosec, frame_len, frame, u, tail_len):
+    buf = bytearray(bytes([0, encapsulation, 0, 0]))
+    buf += struct.pack('<iII', sec, nanosec, frame_len) + frame
+    buf += bytes((-(len(buf) - 4)) % 8) + struct.pack('<6d', *u)
+    return bytes(buf if tail_len is None else buf[:tail_len])
+
+
+command_bytes = st.builds(
+    _command_bytes,
+    st.integers(0, 12),
+    st.integers(-(2**31), 2**31 - 1),
+    st.integers(0, 2**32 - 1),
+    st.integers(0, 2**32 - 1) | st.integers(0, 12),
+    st.binary(max_size=16),
+    st.tuples(*[floats] * 6),
+    st.none() | st.integers(0, 100),
+)
+
+
+@budget(150)
+@given(st.binary(max_size=200) | command_bytes, st.sampled_from(SCENARIOS))
+def test_command_cdr_decodes_or_is_refused(data, scenario):
+    try:
+        ns, u = cdr.command_from_cdr(data, scenario)
+    except cdr.CdrError:
+        return
+    assert isinstance(ns, int) and u.dtype == np.float64
+    assert u.shape == (cdr.get_scenario(scenario).command_dim,)
+
+
+# --- trajectory files ------------------------------------------------------------------------------
+
+dtypes = st.sampled_from(['<f8', '<f4', '<i8', '<u1', '|b1', '<c16', '<U8', '<M8[s]', '>f8'])
+small_shapes = hnp.array_shapes(min_dims=0, max_dims=5, min_side=0, max_side=4)
+
+
+@st.composite
+def npz_fields(draw):
+    """The fields of a trajectory file, each either plausible or hostile, or missing."""
+    scenario = draw(st.sampled_from(SCENARIOS))
+    d = {'flock2d': 4, 'boids3d': 6}[scenario]
+    fields = {}
+    if draw(st.integers(0, 9)):
+        plausible = hnp.arrays(
+            np.float64,
+            st.tuples(
+                st.integers(0, 2), st.integers(0, 3), st.integers(0, 3), st.sampled_from([d, d, 4, 6, 0])
+            ),
+            elements=st.floats(-1e6, 1e6) | floats,
+        )
+        fields['states'] = draw(plausible | hnp.arrays(dtypes, small_shapes))
+    if draw(st.integers(0, 9)):
+        fields['dt'] = draw(
+            st.sampled_from([np.float64(0.05), np.float64(0.0), np.float64(-1.0), np.float64('nan')])
+            | hnp.arrays(dtypes, small_shapes)
+        )
+    if draw(st.integers(0, 9)):
+        fields['scenario'] = draw(
+            st.sampled_from(SCENARIOS).map(np.str_)
+            | st.text(max_size=12).map(np.str_)
+            | hnp.arrays(dtypes, small_shapes)
+        )
+    if draw(st.integers(0, 9)):
+        meta = st.fixed_dictionaries(
+            {},
+            optional={'split': st.dictionaries(st.sampled_from(['train', 'test']), json_values, max_size=2)},
+        ).map(json.dumps)
+        fields['meta'] = draw((meta | hostile_text).map(np.str_) | hnp.arrays(dtypes, small_shapes))
+    return fields
+
+
+def _check_trajectory(path):
+    try:
+        traj = load_trajectories(path)
+    except TrajectoryError:
+        return None
+    assert isinstance(traj, TrajectoryFile)
+    s = traj.states
+    assert s.dtype == np.float64 and s.ndim == 4 and min(s.shape) >= 1 and np.all(np.isfinite(s))
+    assert math.isfinite(traj.dt) and traj.dt > 0 and isinstance(traj.meta, dict)
+    for name in ('train', 'test'):  # a file's split is read by training: valid indices
+        idx = traj.split(name)
+        assert idx.dtype == np.int64 and idx.ndim == 1 and np.all((0 <= idx) & (idx < s.shape[0]))
+    return traj
+
+
+@budget(100)
+@given(npz_fields(), st.none() | st.floats(0, 1))
+@example(
+    {
+        'states': np.zeros((1, 1, 1, 4)),
+        'dt': np.float64(0.05),
+        'scenario': np.str_('flock2d'),
+        'meta': np.str_('[' * 2000 + ']' * 2000),
+    },
+    None,
+)  # a bracket tower: json's recursion limit, once a RecursionError
+@example(
+    {
+        'states': np.zeros((1, 1, 1, 4)),
+        'dt': np.float64(0.05),
+        'scenario': np.str_('flock2d'),
+        'meta': np.str_('{"split": {"train": [5]}}'),
+    },
+    None,
+)  # a split naming a trajectory the file does not hold
+@example(
+    {
+        'states': np.zeros((1, 1, 1, 4)),
+        'dt': np.float64(0.05),
+        'scenario': np.str_('flock2d'),
+        'meta': np.str_('{"split": {"train": "abc"}}'),
+    },
+    None,
+)  # a split that is not a list of indices
+def test_trajectory_files_load_or_are_refused(fields, cut):
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'traj.npz'
+        np.savez(path, **fields)
+        if cut is not None:
+            data = path.read_bytes()
+            path.write_bytes(data[: int(len(data) * cut)])
+        _check_trajectory(path)
+
+
+@budget(100)
+@given(st.binary(max_size=2000), st.sampled_from([b'', b'PK\x03\x04', b'\x93NUMPY']))
+def test_arbitrary_bytes_as_a_trajectory_file_are_refused(data, magic):
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'traj.npz'
+        path.write_bytes(magic + data)
+        _check_trajectory(path)
+
+
+def test_an_npy_header_claiming_a_huge_array_is_refused_without_allocating_it():
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'traj.npz'
+        np.savez(
+            path,
+            states=np.zeros((1, 1, 1, 4)),
+            dt=np.float64(0.05),
+            scenario=np.str_('flock2d'),
+            meta=np.str_('{}'),
+        )
+        with zipfile.ZipFile(path) as src:
+            members = {n: src.read(n) for n in src.namelist()}
+        header = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            header, {'descr': '<f8', 'fortran_order': False, 'shape': (10**4, 10**4, 10**3, 4)}
+        )
+        members['states.npy'] = header.getvalue() + bytes(64)
+        with zipfile.ZipFile(path, 'w') as dst:
+            for name, data in members.items():
+                dst.writestr(name, data)
+        with pytest.raises(TrajectoryError, match='states'):
+            load_trajectories(path)
+
+
+# --- policy files: knode.json, TorchScript, ONNX twins ---------------------------------------------
+
+
+def _shipped_meta(name='flock2d'):
+    return read_pt_meta(POLICIES / f'{name}.pt')
+
+
+@st.composite
+def hostile_meta(draw):
+    """A shipped policy's knode.json with keys dropped, replaced by any JSON value, or added."""
+    meta = dict(_shipped_meta(draw(st.sampled_from(SCENARIOS))))
+    for key in draw(st.lists(st.sampled_from(sorted(meta)), max_size=3, unique=True)):
+        if draw(st.booleans()):
+            del meta[key]
+        else:
+            meta[key] = draw(json_values | st.integers(-(10**400), 10**400))
+    meta.update(draw(st.dictionaries(st.text(max_size=8), json_values, max_size=2)))
+    return meta
+
+
+def _meta_text(meta):
+    return json.dumps(meta)  # NaN and Infinity as json writes them (Python's json reads them back)
+
+
+@budget(300)
+@given(
+    hostile_meta(),
+    st.none() | st.dictionaries(st.sampled_from(['scenario', 'k', 'dt', 'tau']), json_values, max_size=2),
+)
+@example(dict(_shipped_meta(), d_cr=10**400), None)  # math.isfinite(a huge int): once an OverflowError
+@example(_shipped_meta(), {'dt': 10**400})
+def test_knode_json_is_checked_or_refused(meta, expect):
+    try:
+        check_meta('fuzz', parse_meta('fuzz', _meta_text(meta)), expect)
+    except PolicyError:
+        pass
+
+
+@budget(300)
+@given(hostile_text | st.binary(max_size=200))
+@example('[' * 2000 + ']' * 2000)  # json's recursion limit: once a RecursionError
+@example('1' + '0' * 4300)  # Python's int digit limit: once a ValueError
+def test_knode_json_text_parses_or_is_refused(text):
+    try:
+        meta = parse_meta('fuzz', text)
+    except PolicyError:
+        return
+    try:
+        check_meta('fuzz', meta)
+    except PolicyError:
+        pass
+
+
+@budget(30)
+@given(st.binary(max_size=1000), st.sampled_from([b'', b'PK\x03\x04']))
+def test_arbitrary_bytes_as_a_policy_file_are_refused(data, magic):
+    from knode_swarm_ros.core.policy_runtime import load_runtime
+
+    with _tmpdir() as tmp:
+        pt = Path(tmp) / 'p.pt'
+        pt.write_bytes(magic + data)
+        for reader in (read_pt_meta, lambda p: load_runtime(p, 'torchscript')):
+            with pytest.raises(PolicyError):
+                reader(pt)
+
+
+@pytest.fixture(scope='module')
+def scripted():
+    import torch
+
+    return {name: torch.jit.load(str(POLICIES / f'{name}.pt')) for name in SCENARIOS}
+
+
+@budget(25)
+@given(hostile_meta() | hostile_text, st.sampled_from(SCENARIOS))
+def test_torchscript_with_a_hostile_knode_json_loads_or_is_refused(scripted, meta, scenario):
+    import torch
+
+    from knode_swarm_ros.core.policy_io import load_policy
+
+    text = meta if isinstance(meta, str) else _meta_text(meta)
+    with _tmpdir() as tmp:
+        pt = Path(tmp) / 'p.pt'
+        torch.jit.save(scripted[scenario], str(pt), _extra_files={'knode.json': text})
+        try:
+            policy = load_policy(pt)
+        except PolicyError:
+            return
+        out = policy(np.zeros((1, policy.k, policy.meta['state_dim'])), np.ones((1, policy.k), dtype=bool))
+        assert out.shape == (1, policy.meta['command_dim'])
+
+
+@budget(15)
+@given(hostile_meta() | hostile_text, st.booleans(), st.none() | st.text(max_size=64), st.booleans())
+def test_an_onnx_twin_whose_metadata_disagree_is_refused(meta, with_pt, source, keep_source):
+    import onnx
+
+    from knode_swarm_ros.core.policy_runtime import META_KEY, SOURCE_KEY, load_onnx_policy
+
+    model = onnx.load(str(POLICIES / 'flock2d.onnx'))
+    props = {p.key: p.value for p in model.metadata_props}
+    props[META_KEY] = meta if isinstance(meta, str) else _meta_text(meta)
+    if not keep_source:
+        if source is None:
+            props.pop(SOURCE_KEY, None)
+        else:
+            props[SOURCE_KEY] = source
+    del model.metadata_props[:]
+    for key, value in props.items():
+        model.metadata_props.add(key=key, value=value)
+    with _tmpdir() as tmp:
+        twin = Path(tmp) / 'flock2d.onnx'
+        onnx.save(model, str(twin))
+        pt = None
+        if with_pt:
+            pt = Path(tmp) / 'flock2d.pt'
+            pt.write_bytes((POLICIES / 'flock2d.pt').read_bytes())
+        try:
+            policy = load_onnx_policy(twin, pt_path=pt)
+        except PolicyError:
+            return
+        assert policy.meta == (read_pt_meta(pt) if pt else policy.meta)
+        out = policy(np.zeros((1, policy.k, 4)), np.ones((1, policy.k), dtype=bool))
+        assert out.shape == (1, 2) and np.all(np.isfinite(out))
+
+
+# --- bags ---------------------------------------------------------------------------------------------
+
+
+def _write_bag(bag, storage, stamps, values, type_name='nav_msgs/msg/Odometry'):
+    """A rosbag2 directory (``storage`` mcap | sqlite3) of two robots' messages of ``type_name``,
+    message j with the state ``values`` shifted by j, written in list order with the stamps
+    ``stamps`` (header and log time alike)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from knode_swarm_ros.bag.messages import ns_to_stamp, to_message
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with Writer(bag, version=9, storage_plugin=plugin) as writer:
+        conns = [writer.add_connection(f'/robot_{i}/odom', type_name, typestore=store) for i in range(2)]
+        for j, ns in enumerate(stamps):
+            header = {'stamp': ns_to_stamp(ns), 'frame_id': 'world'}
+            position = dict(zip('xyz', (values[0] + j // 2, values[1], values[2])))
+            pose = {'position': position, 'orientation': {'w': values[3]}}
+            value = {
+                'nav_msgs/msg/Odometry': {'header': header, 'child_frame_id': 'r', 'pose': {'pose': pose}},
+                'geometry_msgs/msg/PoseStamped': {'header': header, 'pose': pose},
+                'std_msgs/msg/String': {'data': str(values)},
+            }[type_name]
+            writer.write(
+                conns[j % 2], ns, store.serialize_cdr(to_message(type_name, value, store), type_name)
+            )
+    return bag
+
+
+@pytest.fixture(scope='module')
+def good_bags(tmp_path_factory):
+    """``{suffix: bytes}`` of the storage file of a small valid bag of each storage (2 robots,
+    20 frames at 20 Hz)."""
+    stamps = [10**9 + 50_000_000 * (j // 2) for j in range(40)]
+    out = {}
+    for storage in ('mcap', 'sqlite3'):
+        bag = _write_bag(tmp_path_factory.mktemp('bags') / storage, storage, stamps, [0.0, 0.0, 0.0, 1.0])
+        (storage_file,) = [p for p in bag.iterdir() if p.suffix in ('.mcap', '.db3')]
+        out[storage_file.suffix] = storage_file.read_bytes()
+    return out
+
+
+def _import(bag, out):
+    from training.import_bag import main
+
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        rc = main(
+            [
+                str(bag),
+                '--scenario',
+                'flock2d',
+                '--topics',
+                '/robot_*/odom',
+                '--rate',
+                '20',
+                '--out',
+                str(out),
+            ]
+        )
+    assert rc in (0, 2), rc
+    if rc == 2:
+        assert not out.exists(), 'a refused bag left an output file'
+    else:
+        _check_trajectory(out)
+
+
+@budget(40)
+@given(
+    st.sampled_from(['.mcap', '.db3']),
+    st.one_of(
+        st.tuples(st.just('truncate'), st.floats(0, 1)),
+        st.tuples(
+            st.just('flip'), st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=8)
+        ),
+        st.tuples(st.just('magic'), st.binary(max_size=600)),
+    ),
+)
+def test_a_damaged_bag_imports_or_is_refused_without_writing(good_bags, suffix, damage):
+    data = bytearray(good_bags[suffix])
+    how, arg = damage
+    if how == 'truncate':
+        data = data[: int(len(data) * arg)]
+    elif how == 'flip':
+        for where, byte in arg:
+            data[min(int(where * len(data)), len(data) - 1)] = byte
+    else:
+        magic = {'.mcap': b'\x89MCAP0\r\n', '.db3': b'SQLite format 3\x00'}[suffix]
+        data = bytearray(magic + arg)
+    with _tmpdir() as tmp:
+        bag = Path(tmp) / f'run{suffix}'
+        bag.write_bytes(bytes(data))
+        _import(bag, Path(tmp) / 'out.npz')
+
+
+@budget(15)
+@given(
+    st.lists(st.integers(0, 10**12), min_size=1, max_size=30),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=4, max_size=4),
+    st.sampled_from(['nav_msgs/msg/Odometry', 'geometry_msgs/msg/PoseStamped', 'std_msgs/msg/String']),
+    st.sampled_from(['mcap', 'sqlite3']),
+)
+def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps, values, type_name, storage):
+    with _tmpdir() as tmp:
+        bag = _write_bag(Path(tmp) / 'bag', storage, stamps, values, type_name)
+        _import(bag, Path(tmp) / 'out.npz')
+
+
+# --- training configs and --set values ----------------------------------------------------------------
+
+CONFIGS = sorted((ROOT / 'config').glob('train_*.yaml'))
+
+
+@st.composite
+def hostile_config(draw):
+    """A shipped training config with leaves replaced by any YAML value, sections dropped or
+    replaced by scalars, or not a mapping at all."""
+    raw = yaml.safe_load(draw(st.sampled_from(CONFIGS)).read_text())
+    for _ in range(draw(st.integers(0, 4))):
+        section = draw(st.sampled_from(sorted(raw)))
+        if isinstance(raw[section], dict) and raw[section] and draw(st.booleans()):
+            key = draw(st.sampled_from(sorted(raw[section])))
+            raw[section][key] = draw(json_values)
+        elif draw(st.booleans()):
+            del raw[section]
+        else:
+            raw[section] = draw(json_values)
+        if not raw:
+            break
+    return draw(st.just(raw) | json_values)
+
+
+set_items = st.one_of(
+    st.text(max_size=30),
+    st.tuples(
+        st.sampled_from(
+            ['training.epochs', 'policy.k', 'policy', 'data.stride', 'noise.mode', 'x.y.z', '.', 'seed.x']
+        ),
+        st.text(max_size=20) | json_values.map(lambda v: yaml.safe_dump(v, default_flow_style=True).strip()),
+    ).map('='.join),
+)
+
+
+@budget(80)
+@given(hostile_config(), st.lists(set_items, max_size=3))
+@example(
+    {'scenario': 'flock2d'}, ['policy=3', 'policy.k=4']
+)  # a --set below a scalar: once an AttributeError
+@example([1, 2], ['policy.k=4'])  # a config that is not a mapping
+def test_training_configs_and_set_values_load_or_are_refused(raw, items):
+    from training.learning.config import load_config
+
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'train.yaml'
+        path.write_text(yaml.safe_dump(raw))
+        try:
+            cfg = load_config(str(path), parse_set(items))
+        except ConfigError:
+            return
+        assert isinstance(cfg, dict) and cfg['scenario'] in SCENARIOS
+
+
+@budget(60)
+@given(st.lists(st.text(max_size=40) | (nested_yaml | huge_numbers).map(lambda t: 'a.b=' + t), max_size=4))
+@example(['a=' + '[' * 600])  # yaml's recursion: once a RecursionError
+@example(['a=1' + '0' * 4300])  # Python's int digit limit: once a ValueError
+def test_set_values_parse_or_are_refused(items):
+    try:
+        out = parse_set(items)
+    except ConfigError:
+        return
+    assert isinstance(out, dict)
+
+
+# --- node parameter files ---------------------------------------------------------------------------
+
+AGENT_PARAMS = [
+    'robots',
+    'robot_ids',
+    'scenario',
+    'policy',
+    'policy_runtime',
+    'mode',
+    'control_rate',
+    'state_timeout',
+    'future_tolerance',
+    'command_limit',
+    'k',
+    'stat_timeout',
+]
+
+
+@pytest.fixture(scope='module')
+def ros_context():
+    import rclpy
+
+    contexts = []
+    yield rclpy, contexts
+    for ctx in contexts:
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+
+
+@budget(30)
+@given(
+    st.one_of(
+        st.dictionaries(st.sampled_from(AGENT_PARAMS), json_values, max_size=4).map(
+            lambda p: yaml.safe_dump({'/**': {'ros__parameters': p}})
+        ),
+        st.text(max_size=100),
+        nested,
+    )
+)
+def test_agent_params_files_are_read_or_refused(ros_context, text):
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    from knode_swarm_ros.nodes.agent.params import declare_agent_parameters
+    from knode_swarm_ros.nodes.common.params import check_overrides
+
+    rclpy, contexts = ros_context
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'params.yaml'
+        path.write_text(text)
+        ctx = rclpy.Context()
+        contexts.append(ctx)
+        argv = ['--ros-args', '--params-file', str(path)]
+        try:
+            rclpy.init(args=argv, context=ctx)
+        except _rclpy.RCLError:
+            return  # run_node refuses it: ConfigError 'cannot parse the ROS arguments' (exit 2)
+        node = rclpy.create_node('agent_0', context=ctx, start_parameter_services=False)
+        try:
+            declare_agent_parameters(node)
+            check_overrides(node, argv)
+        except ConfigError:
+            pass
+        finally:
+            node.destroy_node()
+            rclpy.shutdown(context=ctx)
+
+
+def test_every_error_a_reader_raises_is_a_knode_error():
+    """The documented classes the properties accept are the project's (exit 2 from a command)."""
+    from knode_swarm_ros.bag.messages import BagError
+
+    for cls in (cdr.CdrError, TrajectoryError, PolicyError, BagError, ConfigError):
+        assert issubclass(cls, KnodeError) and cls.exit_status == 2
