@@ -340,11 +340,12 @@ def test_ground_truth_mode_records_the_ground_truth(tmp_path):
     ref = simulate('flock2d', 1, 6, 201, seed=5, progress=False)
     assert got.states.shape == ref.shape and np.array_equal(got.states, ref)
     assert got.meta['source']['ground_truth'] is True
-    # Observe, learn, deploy: the run's bag imports back into the same trajectory (positions
-    # are stored exactly; velocities come from central differences of the resampled positions).
+    # Observe, learn, deploy: the run's bag imports back into the same trajectory (without the
+    # default smoother, positions are stored exactly; velocities come from central differences).
     from training.import_bag import ImportOptions, import_bag
 
-    imported = import_bag(bag, ImportOptions(scenario='flock2d', rate=100.0, topics=['/robot_*/odom'])).states
+    options = ImportOptions(scenario='flock2d', rate=100.0, topics=['/robot_*/odom'], smooth='none')
+    imported = import_bag(bag, options).states
     assert imported.shape == (1, 201, 6, 4)
     np.testing.assert_allclose(imported[0, :, :, :2], ref[0, :, :, :2], atol=1e-9)
     central = (ref[0, 2:, :, :2] - ref[0, :-2, :, :2]) / 0.02
