@@ -22,6 +22,7 @@ from knode_swarm_ros.core import (
     pod_energy,
 )
 from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.metrics import velocities
 from training.learning.period import period_ratio, subsample
 from training.learning.records import write_json
 
@@ -141,8 +142,11 @@ def evaluate(
             f'{spec.name}: {len(test)} test rollouts of {truth.shape[2]} robots',
         )
     frames = sorted({0, T // 10, T // 2, T - 1})
+    shown = [pred[0], truth[0]]
+    if spec.state == 'position':  # the arrows show velocities: differences of the positions
+        shown = [np.concatenate([z, velocities(z, spec, policy.dt)], axis=-1) for z in shown]
     figures.snapshots(
-        os.path.join(out, 'snapshots.png'), pred[0], truth[0], frames, policy.dt, spec.position_dim, spec.box
+        os.path.join(out, 'snapshots.png'), *shown, frames, policy.dt, spec.position_dim, spec.box
     )
     results: Dict[str, Any] = {
         'policy': os.path.abspath(policy_path),
