@@ -18,7 +18,7 @@ The forward signature is the policy file contract: ``forward(Y [B, k, d], mask [
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import torch
 from torch import Tensor, nn
@@ -143,9 +143,10 @@ class KNODEPolicy(nn.Module):
         self.box = float(spec.box) if spec.box is not None else 0.0
         # unit scales leave the features untouched (the shipped policies' numbers, bit for bit)
         self.scaled = config.position_scale != 1.0 or config.velocity_scale != 1.0
-        scale = [float(config.position_scale)] * spec.position_dim
-        scale += [float(config.velocity_scale)] * (spec.state_dim - spec.position_dim)
-        self.register_buffer('input_scale', torch.tensor(scale), persistent=False)
+        # plain floats, not a buffer: the state_dict (and files' state) stays the shipped layout
+        self.input_scale: List[float] = [float(config.position_scale)] * spec.position_dim + [
+            float(config.velocity_scale)
+        ] * (spec.state_dim - spec.position_dim)
         n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
         self.net = nn.Sequential(
             nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
@@ -157,7 +158,7 @@ class KNODEPolicy(nn.Module):
         """Network input ``[B, F]`` from ``Y [B, k, d]`` and ``mask [B, k]``."""
         m = mask.to(Y.dtype).unsqueeze(-1)
         if self.scaled:
-            Y = Y / self.input_scale.to(Y.dtype)
+            Y = Y / torch.tensor(self.input_scale, dtype=Y.dtype, device=Y.device)
         if not self.relative:
             return (Y * m).flatten(1)
         own = Y[:, 0, :]

@@ -31,6 +31,7 @@ from knode_swarm_ros.core import load_policy
 from knode_swarm_ros.core.cli import cli
 from training.assessment.order import compare_orders, order_figure, order_lines
 from training.assessment.scores import rollout_policy
+from training.learning.config import load_config
 from training.learning.records import write_json
 
 from .laws import LAWS, Law, initial_states, simulate
@@ -173,6 +174,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--max-minutes', type=float, default=10.0, help='training.max_minutes of each run')
     parser.add_argument('--seed', type=int, default=0)
     args = parser.parse_args(argv)
+    load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
     results = {}
     for name in args.laws:
         results[name] = run_law(LAWS[name], args.out, args)
