@@ -18,7 +18,7 @@ The forward signature is the policy file contract: ``forward(Y [B, k, d], mask [
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import torch
 from torch import Tensor, nn
@@ -41,6 +41,9 @@ class PolicyConfig:
 
     ``collision_a``/``wall_a`` are the fixed gain offsets a, ``*_phi`` the initial phi,
     ``*_d0`` the potentials' ranges. ``wall`` is used only by scenarios with a box.
+    ``position_scale``/``velocity_scale`` divide the network's input entries (positions; the
+    rest of the state: velocities, headings) so that they reach the tanh units at O(1) whatever
+    the swarm's units; the knowledge terms see the raw states.
     """
 
     scenario: str
@@ -59,6 +62,8 @@ class PolicyConfig:
     wall_a: float = 0.0
     wall_phi: float = 1.0
     wall_d0: float = 1.0
+    position_scale: float = 1.0
+    velocity_scale: float = 1.0
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
@@ -75,6 +80,8 @@ class PolicyConfig:
             'wall_d0': self.wall_d0 > 0,
             'collision_a': self.collision_a >= 0,
             'wall_a': self.wall_a >= 0,
+            'position_scale': self.position_scale > 0,
+            'velocity_scale': self.velocity_scale > 0,
         }
         for name, ok in checks.items():
             if not ok:
@@ -134,6 +141,12 @@ class KNODEPolicy(nn.Module):
         self.wall_d0 = float(config.wall_d0)
         self.continuous = config.potential == 'continuous'
         self.box = float(spec.box) if spec.box is not None else 0.0
+        # unit scales leave the features untouched (the shipped policies' numbers, bit for bit)
+        self.scaled = config.position_scale != 1.0 or config.velocity_scale != 1.0
+        # plain floats, not a buffer: the state_dict (and files' state) stays the shipped layout
+        self.input_scale: List[float] = [float(config.position_scale)] * spec.position_dim + [
+            float(config.velocity_scale)
+        ] * (spec.state_dim - spec.position_dim)
         n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
         self.net = nn.Sequential(
             nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
@@ -144,6 +157,8 @@ class KNODEPolicy(nn.Module):
     def features(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Network input ``[B, F]`` from ``Y [B, k, d]`` and ``mask [B, k]``."""
         m = mask.to(Y.dtype).unsqueeze(-1)
+        if self.scaled:
+            Y = Y / torch.tensor(self.input_scale, dtype=Y.dtype, device=Y.device)
         if not self.relative:
             return (Y * m).flatten(1)
         own = Y[:, 0, :]

@@ -21,10 +21,13 @@ from knode_swarm_ros.core import (
     load_trajectories,
     pod_energy,
 )
+from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.metrics import velocities
 from training.learning.period import period_ratio, subsample
 from training.learning.records import write_json
 
 from . import figures
+from .order import compare_orders, order_figure, order_lines
 from .scores import final_metrics, rollout_policy
 from .stats import describe
 
@@ -33,12 +36,26 @@ GOALS = {
     'flock2d': 'mean final avd <= 0.05; mean final amd within 15% of ground truth; min distance after 1 s > 0.3',
     'boids3d': 'final amd within 25% of ground truth; mean POD-KLD <= 0.05; >= 18 of 20 rollouts stay in the cube',
 }
+# Any other scenario: the order parameters of the learnt swarm against the observed one.
+CUSTOM_GOALS = (
+    'nearest-neighbour distance within 15% of the observed; polarisation and rotation order within 0.10; '
+    'no more escapes than observed'
+)
 
 
 def goal_check(scenario: str, fm: Dict[str, Any]) -> Dict[str, Any]:
     """Pass/fail per goal from :func:`final_metrics` of the test rollouts."""
     amd_p, amd_t = np.mean(fm['amd_final']), np.mean(fm['truth_amd_final'])
     rel = abs(amd_p - amd_t) / amd_t
+    if scenario not in GOALS:
+        out = {'amd_within_15%': bool(rel <= 0.15), 'amd_rel_error': float(rel)}
+        for key in ('polarisation', 'rotation'):
+            err = abs(np.mean(fm[f'order_{key}']) - np.mean(fm[f'truth_order_{key}']))
+            out[f'{key}_within_0.10'] = bool(err <= 0.10)
+            out[f'{key}_error'] = float(err)
+        if 'order_escapes' in fm:
+            out['escapes_not_more'] = bool(np.sum(fm['order_escapes']) <= np.sum(fm['truth_order_escapes']))
+        return out
     if scenario == 'flock2d':
         return {
             'avd_final<=0.05': bool(np.mean(fm['avd_final']) <= 0.05),
@@ -121,14 +138,29 @@ def evaluate(
         curves,
         f'{spec.name}: {len(test)} test rollouts, mean and 95% CI',
     )
+    # order parameters for every scenario, learnt against observed (beside avd/amd)
+    orders = compare_orders(spec, pred, truth, policy.dt) if finite else None
+    if orders is not None:
+        order_figure(
+            os.path.join(out, 'orders.png'),
+            spec,
+            pred,
+            truth,
+            policy.dt,
+            f'{spec.name}: {len(test)} test rollouts of {truth.shape[2]} robots',
+        )
     frames = sorted({0, T // 10, T // 2, T - 1})
+    shown = [pred[0], truth[0]]
+    if spec.state == 'position':  # the arrows show velocities: differences of the positions
+        shown = [np.concatenate([z, velocities(z, spec, policy.dt)], axis=-1) for z in shown]
     figures.snapshots(
-        os.path.join(out, 'snapshots.png'), pred[0], truth[0], frames, policy.dt, spec.position_dim, spec.box
+        os.path.join(out, 'snapshots.png'), *shown, frames, policy.dt, spec.position_dim, spec.box
     )
     results: Dict[str, Any] = {
         'policy': os.path.abspath(policy_path),
         'data': os.path.abspath(data_path),
         'scenario': spec.name,
+        'scenario_spec': spec.to_dict(),
         'test_trajectories': test.tolist(),
         'trajectories_used': used,
         'robots': int(truth.shape[2]),
@@ -136,7 +168,7 @@ def evaluate(
         'dt': policy.dt,
         'rollout_seconds': round(rollout_s, 2),
         'finite': finite,
-        'goals': GOALS[spec.name],
+        'goals': GOALS.get(spec.name if spec.shipped else '', CUSTOM_GOALS),
         'policy_meta': {
             k: policy.meta.get(k) for k in ('k', 'd_cr', 'tau', 'frame', 'command_limit', 'hidden')
         },
@@ -156,7 +188,9 @@ def evaluate(
             'ground truth': e_true.mean(0).tolist(),
         }
         results['rollouts_inside'] = int(np.sum(fm['stays_inside']))
-    results['goal_check'] = goal_check(spec.name, fm) if finite else {'finite': False}
+    if orders is not None:
+        results['orders'] = orders
+    results['goal_check'] = goal_check(spec.name if spec.shipped else '', fm) if finite else {'finite': False}
     if scaling:
         results['scaling'] = scaling_study(
             policy, out, sizes, ics, scaling_steps or (T - 1), seed, log, preset
@@ -217,6 +251,11 @@ def scaling_study(
     from knode_swarm_ros.core.groundtruth import simulate
 
     spec = get_scenario(policy.scenario)
+    if not spec.shipped:
+        raise KnodeError(
+            f'--scaling: scenario {spec.name} has no ground-truth law in the package; roll out '
+            'held-out starts of your own law instead (training.studies.custom_laws shows how)'
+        )
     if spec.name == 'boids3d':
         from . import scaling
 
@@ -301,11 +340,15 @@ def write_summary(path: str, r: Dict[str, Any]) -> None:
         *(f'{k}: {v}' for k, v in r['goal_check'].items()),
         '```',
     ]
+    if 'orders' in r:
+        lines += ['', '## Order parameters (last 20 frames; mean [95 % interval] over the rollouts)', '']
+        lines += order_lines(r['orders'])
     if 'scaling' in r:
         lines += [''] + _scaling_lines(r['scaling'])
     lines += [
         '',
         'Figures: metrics.png, snapshots.png'
+        + (', orders.png' if 'orders' in r else '')
         + (', pod.png' if 'pod_kld' in f else '')
         + (''.join(', ' + f for f in _scaling_figures(r['scenario'])) if 'scaling' in r else ''),
         '',

@@ -13,6 +13,7 @@ from torch import nn
 
 from knode_swarm_ros.core import amd, avd, pod_kld, rollout
 from knode_swarm_ros.core.geometry import min_pair_distance
+from knode_swarm_ros.core.metrics import escaped, polarisation, rotation_order, velocities
 from knode_swarm_ros.core.scenarios import Scenario
 
 
@@ -39,7 +40,8 @@ def final_metrics(
 
     flock2d: final avd and amd (mean over the last ``last`` frames), min pair distance after
     ``settle_s``; boids3d: final amd, POD-KLD per trajectory (needs ``truth``), fraction of
-    frames inside the cube, whether each trajectory stays inside.
+    frames inside the cube, whether each trajectory stays inside; any other scenario also the
+    order parameters of :func:`order_finals` (``order_*``, ``truth_order_*``).
     """
     dt = spec.dt if dt is None else dt
     p = spec.position
@@ -58,8 +60,27 @@ def final_metrics(
         out['truth_min_distance'] = min_pair_distance(truth[:, settle:, :, p]).min(axis=1).tolist()
         if spec.velocity is not None:
             out['truth_avd_final'] = avd(truth[:, -last:, :, spec.velocity]).mean(axis=1).tolist()
-        if spec.name == 'boids3d':
+        if spec.name == 'boids3d' and spec.shipped:
             out['pod_kld'] = [pod_kld(truth[s], pred[s]) for s in range(pred.shape[0])]
+    if not spec.shipped:
+        out.update(order_finals(spec, pred, 'order', last, dt))
+        if truth is not None:
+            out.update(order_finals(spec, truth, 'truth_order', last, dt))
+    return out
+
+
+def order_finals(spec: Scenario, states: np.ndarray, prefix: str, last: int, dt: float) -> Dict[str, Any]:
+    """Polarisation and rotation order of ``states [S, T, n, d]``, means over the last ``last``
+    frames ``{prefix_polarisation: [S], prefix_rotation: [S]}``, and the escapes per trajectory
+    (``prefix_escapes``) with an arena."""
+    v = velocities(states, spec, dt)[:, -last:]
+    p = states[:, -last:, :, spec.position]
+    out = {
+        f'{prefix}_polarisation': polarisation(v).mean(axis=1).tolist(),
+        f'{prefix}_rotation': rotation_order(p, v).mean(axis=1).tolist(),
+    }
+    if spec.arena is not None:
+        out[f'{prefix}_escapes'] = escaped(states[..., spec.position], spec.arena).sum(axis=-1).tolist()
     return out
 
 
@@ -84,7 +105,9 @@ def selection_score(spec: Scenario, m: Dict[str, Any]) -> float:
     """Scalar for model selection by rollouts (lower is better).
 
     flock2d: mean final avd + relative amd error + 1 per rollout with a collision (< 0.3);
-    boids3d: relative amd error + mean POD-KLD + fraction of rollouts leaving the cube.
+    boids3d: relative amd error + mean POD-KLD + fraction of rollouts leaving the cube;
+    any other scenario: relative amd error + the differences of the mean final polarisation and
+    rotation order + the escapes per rollout beyond the ground truth's.
     The amd error compares medians over the rollouts: one start whose ground truth blows up (a
     close pair at t = 0 throws it apart, amd ~90) would otherwise swamp the mean and leave the
     term constant across epochs. (With one or two rollouts the medians are the means.)
@@ -92,7 +115,14 @@ def selection_score(spec: Scenario, m: Dict[str, Any]) -> float:
     """
     truth_amd = float(np.median(m['truth_amd_final']))
     amd_rel = abs(float(np.median(m['amd_final'])) - truth_amd) / max(truth_amd, 1e-9)
-    if spec.name == 'flock2d':
+    if not spec.shipped:
+        # any swarm: the spacing, its order parameters and the arena, each O(1) when wrong
+        score = amd_rel
+        for key in ('polarisation', 'rotation'):
+            score += abs(np.mean(m[f'order_{key}']) - np.mean(m[f'truth_order_{key}']))
+        if 'order_escapes' in m:
+            score += max(0.0, np.mean(m['order_escapes']) - np.mean(m['truth_order_escapes']))
+    elif spec.name == 'flock2d':
         score = np.mean(m['avd_final']) + amd_rel + float(np.sum(np.array(m['min_distance']) < 0.3))
     else:
         score = amd_rel + np.mean(m['pod_kld']) + 1.0 - np.mean(m['stays_inside'])
@@ -114,7 +144,7 @@ def rollout_module(
             module_policy_fn(module),
             z0,
             steps,
-            spec.name,
+            spec,
             cfg_policy['d_cr'],
             cfg_policy['k'],
             cfg_policy['tau'],

@@ -9,14 +9,16 @@ from __future__ import annotations
 import copy
 import math
 import os
-from dataclasses import fields
-from typing import Any, Dict, Optional
+from dataclasses import dataclass, fields
+from typing import Any, Dict, List, Optional, Union
 
 from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, get_scenario
 
 # A training config is invalid; the message names the field (one class with the nodes').
 from knode_swarm_ros.core.errors import ConfigError
+from knode_swarm_ros.core.scenarios import Scenario, scenario_ref
 
+from .derive import AUTO, auto_fields
 from .objectives import OBJECTIVES
 
 # ----------------------------------------------------------------------------- configs
@@ -67,6 +69,30 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
     'augment': {'rotate': False, 'velocity_boost': 0.0},
 }
 NOISE_VARIANCE = {'flock2d': 0.001, 'boids3d': 0.01}
+# A scenario of your own starts from these (train_custom.yaml derives most of them from the data).
+GENERIC_NOISE_VARIANCE = 0.0
+
+
+def policy_defaults(spec: Scenario) -> Dict[str, Any]:
+    """The policy fields' defaults: the paper's for a shipped scenario, else generic ones
+    (walls only with an arena)."""
+    if spec.shipped:
+        return dict(DEFAULTS[spec.name])
+    return dict(
+        k=6,
+        d_cr=5.0,
+        tau=0,
+        command_limit=10.0,
+        collision_a=0.0,
+        collision_phi=1.0,
+        collision_d0=1.0,
+        wall=spec.arena is not None,
+        wall_a=0.0,
+        wall_phi=1.0,
+        wall_d0=1.0,
+    )
+
+
 SOLVERS = ('zoh', 'rk4', 'adjoint')
 NOISE_MODES = ('inputs', 'observations', 'none')
 SCHEDULES = ('cosine', 'step', 'none')
@@ -93,15 +119,16 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
             key in known_top, key, raw[key], f'unknown top-level field; known: {", ".join(sorted(known_top))}'
         )
     _check('scenario' in raw, 'scenario', None, 'required (flock2d or boids3d)')
-    scenario = raw['scenario']
     try:
-        get_scenario(scenario)
+        spec = get_scenario(raw['scenario'])
     except ValueError as exc:
-        raise ConfigError(f"config field 'scenario' = {scenario!r}: {exc}") from None
+        raise ConfigError(f"config field 'scenario' = {raw['scenario']!r}: {exc}") from None
+    # the canonical reference (a shipped name, else the whole scenario): what the data files carry
+    scenario = scenario_ref(spec)
     cfg: Dict[str, Any] = {
         'scenario': scenario,
         'seed': raw.get('seed', 0),
-        'name': raw.get('name', scenario),
+        'name': raw.get('name', spec.name),
     }
     _check(
         isinstance(cfg['seed'], int) and not isinstance(cfg['seed'], bool),
@@ -110,7 +137,7 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
         'must be an integer',
     )
 
-    policy = dict(DEFAULTS[scenario])
+    policy = policy_defaults(spec)
     given = raw.get('policy') or {}
     _check(isinstance(given, dict), 'policy', given, 'must be a mapping')
     for key, value in given.items():
@@ -140,7 +167,7 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
             merged[key] = value
         cfg[section] = merged
     if cfg['noise']['variance'] is None:
-        cfg['noise']['variance'] = NOISE_VARIANCE[scenario]
+        cfg['noise']['variance'] = NOISE_VARIANCE.get(scenario, GENERIC_NOISE_VARIANCE)
 
     t, d, n, s = cfg['training'], cfg['data'], cfg['noise'], cfg['selection']
 
@@ -252,13 +279,21 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
     _check(n['mode'] in NOISE_MODES, 'noise.mode', n['mode'], f'must be one of {", ".join(NOISE_MODES)}')
     _check(num(n['variance']) and n['variance'] >= 0, 'noise.variance', n['variance'], 'must be >= 0')
     a = cfg['augment']
-    spec = get_scenario(scenario)
     _check(isinstance(a['rotate'], bool), 'augment.rotate', a['rotate'], 'must be true or false')
     _check(
-        not a['rotate'] or spec.name == 'flock2d',
+        not a['rotate'] or spec.arena is None,
         'augment.rotate',
         a['rotate'],
-        'random rotations are a symmetry of flock2d only (boids3d has walls)',
+        f"random rotations break the symmetry of the scenario's walls (scenario {spec.name}, "
+        f"field 'arena' = {spec.to_dict()['arena']})",
+    )
+    _check(
+        not a['rotate']
+        or cfg['training']['objective'] != 'multi_step'
+        or (spec.dimensions == 2 and spec.state == 'position_velocity'),
+        'augment.rotate',
+        a['rotate'],
+        'the multi_step objective rotates 2D position_velocity windows only',
     )
     _check(
         num(a['velocity_boost']) and a['velocity_boost'] >= 0,
@@ -270,7 +305,14 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
         a['velocity_boost'] == 0 or spec.command == 'acceleration',
         'augment.velocity_boost',
         a['velocity_boost'],
-        'Galilean boosts are a symmetry of flock2d only',
+        f"Galilean boosts shift velocities, which scenario {spec.name}'s state has not "
+        f"(field 'state' = {spec.state!r})",
+    )
+    _check(
+        a['velocity_boost'] == 0 or spec.arena is None,
+        'augment.velocity_boost',
+        a['velocity_boost'],
+        f"Galilean boosts break the symmetry of the scenario's walls (scenario {spec.name}, field 'arena')",
     )
     _check(
         isinstance(s['every'], int) and s['every'] >= 0,
@@ -362,8 +404,79 @@ def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
         t['epochs'] = total
 
 
-def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-    """Read a YAML config, apply ``{"section.key": value}`` overrides, validate."""
+@dataclass
+class PendingConfig:
+    """A config with fields the data decide: ``scenario: auto`` (the data file's scenario) or
+    ``auto`` fields (:data:`training.learning.derive.DERIVED_FIELDS`). Everything else was
+    validated on load; :func:`resolve_config` completes it once the data are read."""
+
+    raw: Dict[str, Any]
+    auto: List[str]
+    where: str = 'config'
+
+
+def _placeholders(raw: Dict[str, Any], scenario: Any) -> Dict[str, Any]:
+    """``raw`` with ``scenario`` and every ``auto`` field replaced by its default, for validation."""
+    out = copy.deepcopy(raw)
+    out['scenario'] = scenario
+    for dotted in auto_fields(raw):
+        section, key = dotted.split('.')
+        del out[section][key]
+    return out
+
+
+def resolve_config(pending: PendingConfig, trajectories, scenario: str, dt: float):
+    """The complete config of ``pending`` for data of ``scenario`` (a reference) whose train
+    trajectories are ``trajectories`` (one ``[N, T, n, d]`` array per file, at the data's ``dt``).
+
+    Returns ``(cfg, derived)``; ``derived`` maps each derived field to its value and how it was
+    derived (:func:`training.learning.derive.derive`). Raises :class:`ConfigError` naming the field.
+    """
+    from .derive import derive
+    from .period import period_ratio, policy_dt, subsample
+
+    raw = pending.raw
+    if raw.get('scenario') not in (AUTO, None):
+        given = scenario_ref(get_scenario(raw['scenario']))
+        if given != scenario:
+            raise ConfigError(
+                f"{pending.where}: field 'scenario' is {given!r} but the data's scenario is {scenario!r} "
+                "(use 'scenario: auto' to take the data's)"
+            )
+    try:
+        cfg = normalise_config(_placeholders(raw, scenario))
+        ratio = period_ratio(dt, cfg['data']['policy_dt'])
+        cfg, derived = derive(
+            cfg,
+            pending.auto,
+            [subsample(t, ratio) for t in trajectories],
+            get_scenario(scenario),
+            policy_dt(dt, ratio),
+        )
+        return normalise_config(cfg), derived
+    except ConfigError as exc:
+        raise ConfigError(f'{pending.where}: {exc}') from None
+    except ValueError as exc:
+        raise ConfigError(f'{pending.where}: config field {exc}') from None
+
+
+def complete_config(pending: PendingConfig, data_paths: List[str]):
+    """:func:`resolve_config` from trajectory files: the first file's scenario and dt, every
+    file's train split. Returns ``(cfg, derived)``."""
+    from knode_swarm_ros.core import load_trajectories
+
+    files = [load_trajectories(path) for path in data_paths]
+    trajectories = [f.states[f.split('train')] for f in files]
+    return resolve_config(pending, trajectories, files[0].scenario, float(files[0].dt))
+
+
+def load_config(
+    path: str, overrides: Optional[Dict[str, Any]] = None
+) -> Union[Dict[str, Any], PendingConfig]:
+    """Read a YAML config, apply ``{"section.key": value}`` overrides, validate.
+
+    A config with ``scenario: auto`` or ``auto`` fields gives a :class:`PendingConfig` (the
+    trainer completes it from the data); any other gives the normalised config."""
     import yaml
 
     if not os.path.isfile(path):
@@ -386,6 +499,12 @@ def load_config(path: str, overrides: Optional[Dict[str, Any]] = None) -> Dict[s
                 raise ConfigError(f'--set {dotted}: {where} is {node!r}, not a section')
         node[leaf] = value
     try:
+        auto = auto_fields(raw)
+        if raw.get('scenario') == AUTO or auto:
+            # validate what is given now; the scenario-dependent checks run again once resolved
+            scenario = raw.get('scenario')
+            normalise_config(_placeholders(raw, 'flock2d' if scenario == AUTO else scenario))
+            return PendingConfig(raw, auto, f'config file {path}')
         return normalise_config(raw)
     except ConfigError as exc:
         # a field set on the command line is reported there, not as an error of the file

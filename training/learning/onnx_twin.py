@@ -70,9 +70,15 @@ def check_inputs(meta: Dict, seed: int = 0) -> Dict[str, Tuple[np.ndarray, np.nd
         faces = rng.uniform(spec.box - 1.5, spec.box + 0.5, (B, p)) * rng.choice([-1, 1], (B, p))
         walls[:, 0, :p] = faces  # near, on and beyond the walls
         out['walls'] = finish(walls, (rng.random((B, k)) < 0.5) | (np.arange(k) == 0))
-    from knode_swarm_ros.core.groundtruth import simulate
+    if spec.shipped:
+        from knode_swarm_ros.core.groundtruth import simulate
 
-    states = simulate(spec.name, 2, 12, 40, seed, progress=False)
+        states = simulate(spec.name, 2, 12, 40, seed, progress=False)
+    else:  # no ground truth law: random swarms at the policy's neighbour range
+        states = rng.normal(0, 0.5 * float(meta['d_cr']), (2, 40, 12, d))
+        if spec.heading is not None:
+            h = states[..., spec.heading]
+            states[..., spec.heading] = h / np.linalg.norm(h, axis=-1, keepdims=True)
     Y, mask = neighbour_matrices(states, p, float(meta['d_cr']), k, int(meta['tau']))
     out['real swarms'] = (Y.reshape(-1, k, d).astype(np.float32), mask.reshape(-1, k).astype(np.float32))
     return out

@@ -96,6 +96,25 @@ def make_samples(
     return Samples(f32(Ys), f32(ms), f32(target), f32(own))
 
 
+def random_rotations(B: int, dims: int, g: Optional[torch.Generator]) -> Tensor:
+    """``B`` random rotation matrices ``[B, dims, dims]``: a uniform angle in 2D, a uniform
+    rotation (a normalised Gaussian quaternion) in 3D."""
+    if dims == 2:
+        theta = torch.rand(B, generator=g) * (2 * math.pi)
+        c, s = torch.cos(theta), torch.sin(theta)
+        return torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)
+    q = torch.randn(B, 4, generator=g)
+    w, x, y, z = (q / q.norm(dim=1, keepdim=True)).unbind(1)
+    return torch.stack(
+        [
+            torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            torch.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            torch.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
 def augment_batch(
     Y: Tensor,
     mask: Tensor,
@@ -107,23 +126,22 @@ def augment_batch(
     boost_std: float,
     g: Optional[torch.Generator],
 ):
-    """Apply symmetries of the flock2d ground truth to a batch of samples.
+    """Apply symmetries of the scenario to a batch of samples (the config allows them only
+    where they hold: rotations without an arena, boosts for acceleration scenarios).
 
-    ``rotate``: one random planar rotation per sample of every position and velocity (Tanner's
-    law is rotation invariant); ``boost_std``: one Gaussian velocity offset per sample added to
-    every velocity (Galilean invariance: only velocity differences enter), with the target
-    position shifted by offset * dt. The implied command rotates with the sample and is
-    unchanged by the boost, so the augmented pairs are exact observations of the same law.
+    ``rotate``: one random rotation per sample (planar in 2D, uniform on SO(3) in 3D) of every
+    position, velocity and heading (an isotropic law is rotation invariant); ``boost_std``: one
+    Gaussian velocity offset per sample added to every velocity (Galilean invariance: only
+    velocity differences enter), with the target position shifted by offset * dt. The implied
+    command rotates with the sample and is unchanged by the boost, so the augmented pairs are exact observations of the same law.
     """
     B, p = Y.shape[0], spec.position_dim
     if rotate:
-        theta = torch.rand(B, generator=g) * (2 * math.pi)
-        c, s = torch.cos(theta), torch.sin(theta)
-        R = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # [B, 2, 2]
+        R = random_rotations(B, p, g)  # [B, p, p]
 
-        def rot(z):  # z [B, ..., d] with 2D position and velocity blocks
+        def rot(z):  # z [B, ..., d]: blocks of p entries (position, then velocity or heading)
             shape = z.shape
-            blocks = z.reshape(B, -1, 2, 2)  # [B, rows, block, xy]
+            blocks = z.reshape(B, -1, shape[-1] // p, p)  # [B, rows, block, axis]
             return torch.einsum('bij,brkj->brki', R, blocks).reshape(shape)
 
         Y, own, target = rot(Y), rot(own), rot(target)

@@ -24,7 +24,7 @@ from knode_swarm_ros.core.errors import KnodeError, RunError
 from knode_swarm_ros.core.trajectory import atomic_write
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
 
-from .config import ConfigError, build_policy
+from .config import ConfigError, PendingConfig, build_policy, complete_config
 from .objectives import TrainingData, make_objective
 from .objectives.one_step import OneStepObjective
 from .period import period_ratio, policy_dt, subsample
@@ -213,16 +213,22 @@ class Trainer:
         progress: bool = True,
         log=print,
     ):
-        self.cfg = cfg
         self.data_path = data_path
         self.out = out_dir
         self.progress = progress
         self.log = log
-        self.spec = get_scenario(cfg['scenario'])
-        torch.set_num_threads(cfg['training']['threads'])
         paths = [data_path] if isinstance(data_path, (str, os.PathLike)) else list(data_path)
         if not paths:
             raise DataError('no data file given')
+        # fields the data decide (scenario: auto, policy.k: auto, ...): training.learning.derive
+        self.derived: Dict[str, Any] = {}
+        if isinstance(cfg, PendingConfig):
+            cfg, self.derived = complete_config(cfg, paths)
+            for name, entry in self.derived.items():
+                self.log(f'derived {name} = {entry["value"]}: {entry["how"]}')
+        self.cfg = cfg
+        self.spec = get_scenario(cfg['scenario'])
+        torch.set_num_threads(cfg['training']['threads'])
         self.data_paths = paths
         # the code that trains is the code at the start (a tree edited during a run must not
         # change what the policy says it came from)
@@ -644,6 +650,8 @@ class Trainer:
             'train_seconds': round(self.elapsed, 1),
             'torch': torch.__version__,
         }
+        if self.derived:
+            meta['provenance']['derived'] = self.derived
         path = os.path.join(self.out, 'policy.pt')
         export_policy(self.policy, path, meta)
         onnx_twin = self._export_twin(path)
@@ -661,5 +669,7 @@ class Trainer:
             'start_selection': self.start_selection,
             'onnx': onnx_twin,
         }
+        if self.derived:
+            summary['derived'] = self.derived
         write_json(os.path.join(self.out, 'summary.json'), summary)
         return summary

@@ -218,7 +218,7 @@ def rollout_windows(
     H = obs.shape[1] - 1
     d_cr, k, tau = cfg_policy['d_cr'], cfg_policy['k'], cfg_policy['tau']
     if checkpoint_every <= 0 or checkpoint_every >= H:
-        return rollout_torch(policy, obs[:, 0], H, spec.name, d_cr, k, tau, dt, history)
+        return rollout_torch(policy, obs[:, 0], H, spec, d_cr, k, tau, dt, history)
     from torch.utils.checkpoint import checkpoint
 
     frames = [obs[:, 0]]
@@ -228,7 +228,7 @@ def rollout_windows(
         steps = min(checkpoint_every, H - t)
 
         def segment(z0, hist, steps=steps):
-            return rollout_torch(policy, z0, steps, spec.name, d_cr, k, tau, dt, hist)[:, 1:]
+            return rollout_torch(policy, z0, steps, spec, d_cr, k, tau, dt, hist)[:, 1:]
 
         if tau > 0:
             known = torch.stack(frames, dim=1)

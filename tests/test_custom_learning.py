@@ -1,0 +1,150 @@
+"""Learning any scenario: the hyper-parameters config/train_custom.yaml derives from the data, the
+augmentations that follow the scenario, and the whole path CSV -> import_tracks -> train ->
+evaluate on a tiny law of our own."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from knode_swarm_ros.core import load_policy
+from knode_swarm_ros.core.errors import ConfigError
+from knode_swarm_ros.core.scenarios import scenario_from_dict
+from training.learning.config import PendingConfig, load_config, normalise_config, resolve_config
+from training.learning.samples import random_rotations
+
+ROOT = os.path.join(os.path.dirname(__file__), '..')
+RECIPE = os.path.join(ROOT, 'config', 'train_custom.yaml')
+SPACING, VELOCITY = 0.5, np.array([0.3, 0.4])
+
+
+def scenario(dims=2, state='position', command='velocity', arena=None):
+    return scenario_from_dict(
+        dict(name='lattice', dimensions=dims, state=state, command=command, dt=0.1, arena=arena)
+    )
+
+
+def lattice_tracks(frames=5):
+    """A 3 x 3 lattice of spacing 0.5 m moving rigidly at (0.3, 0.4) m/s: ``[2, frames, 9, 2]``."""
+    grid = SPACING * np.array([[i, j] for i in range(3) for j in range(3)], dtype=float)
+    t = 0.1 * np.arange(frames)
+    states = grid[None] + t[:, None, None] * VELOCITY
+    return np.stack([states, states + 5.0])
+
+
+def test_derived_hyper_parameters_of_a_lattice_of_known_spacing():
+    pending = load_config(RECIPE)
+    assert isinstance(pending, PendingConfig)
+    spec = scenario()
+    cfg, derived = resolve_config(
+        pending, [lattice_tracks()], json.dumps(spec.to_dict(), sort_keys=True), 0.1
+    )
+    pol = cfg['policy']
+    assert pol['d_cr'] == pytest.approx(3 * SPACING)  # 3 x the nearest-neighbour distance
+    assert pol['k'] == 9  # the corners are 2 sqrt(2) spacings apart, within d_cr: everyone
+    assert pol['command_limit'] == pytest.approx(1.5 * 0.4)  # the largest axis of the velocity
+    assert pol['collision_d0'] == pytest.approx(SPACING)  # never closer than the spacing
+    # the push at d0 / 2 is half the command limit
+    lam = pol['collision_phi'] ** 2
+    assert lam * (2 / SPACING - 1 / SPACING) / (SPACING / 2) ** 2 == pytest.approx(0.3, rel=1e-4)
+    grid = lattice_tracks()[0, 0]
+    offsets = grid[None] - grid[:, None]
+    near = (np.linalg.norm(offsets, axis=-1) <= 3 * SPACING) & ~np.eye(9, dtype=bool)
+    assert pol['position_scale'] == pytest.approx(np.sqrt(np.mean(offsets[near] ** 2)), rel=1e-5)
+    assert pol['velocity_scale'] == 1.0 and pol['wall'] is False or spec.arena is None
+    assert cfg['augment']['rotate'] is True  # no arena: rotations are a symmetry
+    assert cfg['noise']['variance'] == pytest.approx((0.02 * pol['position_scale']) ** 2, rel=1e-4)
+    for name in ('policy.k', 'policy.d_cr', 'policy.command_limit', 'noise.variance'):
+        assert derived[name]['value'] is not None and derived[name]['how']
+
+
+def test_an_explicit_value_wins_over_auto():
+    pending = load_config(RECIPE, {'policy.k': 4, 'policy.d_cr': 2.0})
+    ref = json.dumps(scenario().to_dict(), sort_keys=True)
+    cfg, derived = resolve_config(pending, [lattice_tracks()], ref, 0.1)
+    assert cfg['policy']['k'] == 4 and cfg['policy']['d_cr'] == 2.0
+    assert 'policy.k' not in derived and 'policy.d_cr' not in derived
+
+
+def test_double_integrator_in_an_arena_derives_walls_and_no_rotations():
+    spec = scenario(3, 'position_velocity', 'acceleration', {'half_width': 4.0})
+    pos = lattice_tracks()[:1]
+    pos = np.concatenate([pos, np.zeros(pos.shape[:-1] + (1,))], axis=-1) - 1.0
+    vel = np.broadcast_to(np.array([0.3, 0.4, 0.0]), pos.shape)
+    states = np.concatenate([pos, vel], axis=-1)
+    cfg, derived = resolve_config(load_config(RECIPE), [states], json.dumps(spec.to_dict()), 0.1)
+    pol = cfg['policy']
+    assert cfg['augment']['rotate'] is False and pol['wall'] is True
+    # the lattice lies in [-1, 0]^2 x {-1} and drifts inwards in [-4, 4]^3: 3 m from the nearest wall
+    assert pol['wall_d0'] == pytest.approx(3.0)
+    # a rigid drift needs no acceleration: the limit is the floor, 0.1 x the RMS velocity entry
+    assert pol['command_limit'] == pytest.approx(0.1 * np.sqrt((0.09 + 0.16) / 3), rel=1e-4)
+    assert pol['velocity_scale'] == pytest.approx(np.sqrt((0.09 + 0.16) / 3), rel=1e-4)
+    assert 'policy.wall_d0' in derived
+
+
+def test_an_augmentation_that_breaks_the_scenario_is_refused_naming_the_field():
+    arena = scenario(3, 'position_velocity', 'acceleration', {'half_width': 4.0}).to_dict()
+    with pytest.raises(ConfigError, match='augment.rotate.*arena'):
+        normalise_config({'scenario': arena, 'augment': {'rotate': True}})
+    with pytest.raises(ConfigError, match='augment.velocity_boost.*arena'):
+        normalise_config({'scenario': arena, 'augment': {'velocity_boost': 1.0}})
+    with pytest.raises(ConfigError, match="augment.velocity_boost.*'state'"):
+        normalise_config({'scenario': scenario().to_dict(), 'augment': {'velocity_boost': 1.0}})
+    cfg = normalise_config({'scenario': scenario(3).to_dict(), 'augment': {'rotate': True}})
+    assert cfg['augment']['rotate'] is True and cfg['policy']['wall'] is False
+
+
+@pytest.mark.parametrize('dims', [2, 3])
+def test_random_rotations_are_rotations(dims):
+    R = random_rotations(64, dims, torch.Generator().manual_seed(0))
+    eye = torch.eye(dims).expand(64, dims, dims)
+    assert torch.allclose(R @ R.transpose(1, 2), eye, atol=1e-5)
+    assert torch.allclose(torch.linalg.det(R), torch.ones(64), atol=1e-5)
+
+
+def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
+    """CSV tracks of a tiny law -> import_tracks -> train (1 epoch, train_custom.yaml) -> evaluate."""
+    from training.evaluate import main as evaluate_main
+    from training.import_tracks import main as import_main
+    from training.studies.custom_laws import write_tracks
+    from training.studies.laws import LAWS, Law, initial_states, simulate
+
+    base = LAWS['aggregate2d']
+    law = Law('tiny', base.scenario, base.command, base.start_radius_per_sqrt_n, 0.0, 30)
+    csvs = write_tracks(law, str(tmp_path / 'csv'), 5, 6, seed=3)
+    scen = tmp_path / 'tiny.yaml'
+    scen.write_text('name: tiny\ndimensions: 2\nstate: position\ncommand: velocity\ndt: 0.05\narena: null\n')
+    data = tmp_path / 'tiny.npz'
+    assert import_main([*csvs, '--scenario', str(scen), '--out', str(data), '--test-trajectories', '1']) == 0
+    from training.train import main as train_main
+
+    run = tmp_path / 'run'
+    argv = ['--config', RECIPE, '--data', str(data), '--out', str(run), '--no-progress']
+    assert train_main(argv + ['--set', 'training.epochs=1', '--set', 'policy.hidden=8']) == 0
+    summary = json.loads((run / 'summary.json').read_text())
+    assert summary['derived']['policy.k']['how'].startswith('1 + the 90th percentile')
+    policy = load_policy(str(run / 'policy.pt'))
+    assert policy.meta['provenance']['derived']['policy.d_cr']['value'] == policy.d_cr
+    assert policy.meta['scenario']['name'] == 'tiny'
+    out = tmp_path / 'eval'
+    assert evaluate_main(['--policy', str(run / 'policy.pt'), '--data', str(data), '--out', str(out)]) == 0
+    results = json.loads((out / 'results.json').read_text())
+    for name in (
+        'nn_distance',
+        'polarisation',
+        'rotation_order',
+        'speed_median',
+        'groups',
+        'closest_approach',
+    ):
+        entry = results['orders'][name]
+        assert entry['learnt']['lo'] <= entry['learnt']['mean'] <= entry['learnt']['hi']
+        assert np.isfinite(entry['observed']['mean'])
+    assert 'polarisation_within_0.10' in results['goal_check']
+    assert (out / 'orders.png').stat().st_size > 0
+    assert 'Order parameters' in (out / 'summary.md').read_text()
+    z0 = initial_states(law, 2, 6, 9)
+    assert simulate(law, z0, 3).shape == (2, 4, 6, 2)

@@ -1,0 +1,224 @@
+"""Hyper-parameters that depend on the swarm, derived from the data and the scenario
+(``config/train_custom.yaml``; docs/scenarios.md, "Learning any scenario").
+
+A config field set to ``auto`` is derived here; an explicit value (in the config or ``--set``)
+is used as given. Every derived value comes with the sentence that says how, which the trainer
+writes to ``summary.json`` and to the policy's ``knode.json`` (``provenance.derived``).
+
+Inputs are trajectories ``[N, T, n, d]`` at the policy's dt (the file's train split). What is
+derived, in order (later rules use earlier values, derived or given):
+
+* ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
+  neighbours of a lattice);
+* ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
+  and at most the smallest swarm's size;
+* ``policy.command_limit``: 1.5 x the 99th percentile of the implied commands' largest axis
+  (|dv / dt| for acceleration, |dp / dt| for velocity commands); floored for a swarm whose
+  commands are all zero;
+* ``policy.collision_d0``: the 1st percentile of nearest-neighbour distances (closer than the
+  observed swarm ever gets, the avoidance term only guards), ``policy.collision_phi`` such that
+  the push at d0 / 2 is half the command limit;
+* ``policy.wall_d0`` (arena only): the 1st percentile of the robots' distances to the nearest
+  wall, at least 2 % of the half width, ``policy.wall_phi`` as for collisions;
+* ``policy.position_scale``: the RMS of the offsets to the neighbours within d_cr;
+  ``policy.velocity_scale``: the RMS of the velocity entries (1 for headings or no velocity);
+* ``noise.variance``: (2 % of the smaller input scale)^2;
+* ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Dict, List, Sequence, Tuple
+
+import numpy as np
+
+from knode_swarm_ros.core.geometry import pair_distances
+from knode_swarm_ros.core.metrics import nearest_neighbour_distance
+from knode_swarm_ros.core.scenarios import Scenario
+
+__all__ = ['AUTO', 'DERIVED_FIELDS', 'derive', 'auto_fields']
+
+AUTO = 'auto'
+#: The config fields that may be ``auto`` (section.key).
+DERIVED_FIELDS = (
+    'policy.d_cr',
+    'policy.k',
+    'policy.command_limit',
+    'policy.collision_d0',
+    'policy.collision_phi',
+    'policy.wall_d0',
+    'policy.wall_phi',
+    'policy.position_scale',
+    'policy.velocity_scale',
+    'noise.variance',
+    'augment.rotate',
+)
+# Frames used for the statistics: enough for stable quantiles, cheap on long recordings.
+MAX_FRAMES = 4000
+
+
+def auto_fields(raw: Dict[str, Any]) -> List[str]:
+    """The ``section.key`` fields of a raw config set to ``auto``."""
+    out = []
+    for dotted in DERIVED_FIELDS:
+        section, key = dotted.split('.')
+        if (raw.get(section) or {}).get(key) == AUTO:
+            out.append(dotted)
+    return out
+
+
+def _frames(trajectories: Sequence[np.ndarray]) -> List[np.ndarray]:
+    """Every file's frames ``[F, n, d]`` (at most MAX_FRAMES per file, evenly spaced)."""
+    out = []
+    for states in trajectories:
+        flat = np.asarray(states, dtype=np.float64).reshape(-1, *states.shape[2:])
+        step = max(1, len(flat) // MAX_FRAMES)
+        out.append(flat[::step])
+    return out
+
+
+def _implied_commands(trajectories: Sequence[np.ndarray], spec: Scenario, dt: float) -> np.ndarray:
+    """Largest axis of the command a zero-order hold needs between consecutive frames ``[M]``."""
+    parts = []
+    for states in trajectories:
+        block = spec.velocity if spec.command == 'acceleration' else spec.position
+        u = np.diff(np.asarray(states, dtype=np.float64)[..., block], axis=1) / dt
+        parts.append(np.abs(u).max(axis=-1).ravel())
+    return np.concatenate(parts)
+
+
+def _gain_phi(limit: float, d0: float) -> float:
+    """phi with lambda = phi^2 such that the continuous push lambda (1/d - 1/d0) / d^2 at
+    d = d0 / 2 is half the command limit: lambda = limit d0^3 / 8."""
+    return math.sqrt(limit * d0**3 / 8.0)
+
+
+def derive(
+    cfg: Dict[str, Any], fields: Sequence[str], trajectories: Sequence[np.ndarray], spec: Scenario, dt: float
+) -> Tuple[Dict[str, Any], Dict[str, Dict[str, Any]]]:
+    """Fill the ``auto`` ``fields`` of ``cfg`` (changed in place) from ``trajectories``
+    (one ``[N, T, n, d]`` array per data file, at the policy's ``dt``).
+
+    Returns the config and ``{field: {'value': v, 'how': sentence}}`` for the derived fields.
+    """
+    pol = cfg['policy']
+    frames = _frames(trajectories)
+    pos = [f[..., spec.position] for f in frames]
+    nn = np.concatenate([nearest_neighbour_distance(p).ravel() for p in pos])
+    record: Dict[str, Dict[str, Any]] = {}
+
+    def put(dotted: str, value: Any, how: str) -> None:
+        if dotted not in fields:
+            return
+        section, key = dotted.split('.')
+        cfg[section][key] = value
+        record[dotted] = {'value': value, 'how': how}
+
+    median_nn = float(np.median(nn))
+    put(
+        'policy.d_cr',
+        round(3.0 * median_nn, 6),
+        f'3 x the median nearest-neighbour distance ({median_nn:.4g})',
+    )
+    d_cr = float(pol['d_cr'])
+    n_min = min(f.shape[1] for f in frames)
+    counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
+    q90 = float(np.quantile(counts, 0.9))
+    put(
+        'policy.k',
+        int(min(max(2, 1 + math.ceil(q90)), n_min)),
+        f'1 + the 90th percentile of the number of robots within d_cr = {d_cr:.4g} ({q90:g}), '
+        f'in [2, {n_min}] (the smallest swarm)',
+    )
+    u = _implied_commands(trajectories, spec, dt)
+    q99 = float(np.quantile(u, 0.99)) if u.size else 0.0
+    vel = _velocity_entries(frames, trajectories, spec, dt)
+    speed_rms = float(np.sqrt(np.mean(vel**2))) if vel.size else 0.0
+    floor = speed_rms or 1.0
+    unit = 'acceleration (|dv / dt|)' if spec.command == 'acceleration' else 'velocity (|dp / dt|)'
+    put(
+        'policy.command_limit',
+        round(max(1.5 * q99, 0.1 * floor), 6),
+        f'1.5 x the 99th percentile ({q99:.4g}) of the implied {unit} commands, largest axis, '
+        f'at least 0.1 x the RMS speed entry ({floor:.4g})',
+    )
+    limit = float(pol['command_limit'])
+    q01 = float(np.quantile(nn, 0.01))
+    put(
+        'policy.collision_d0',
+        round(q01, 6),
+        'the 1st percentile of nearest-neighbour distances (the observed swarm is closer less than 1 % of the time)',
+    )
+    d0 = float(pol['collision_d0'])
+    put(
+        'policy.collision_phi',
+        round(_gain_phi(limit, d0), 6),
+        f'lambda = phi^2 = command_limit d0^3 / 8: the push at d0 / 2 is half the command limit ({limit:.4g})',
+    )
+    if spec.arena is not None:
+        wall = np.concatenate([(spec.arena - np.abs(p)).min(axis=-1).ravel() for p in pos])
+        q = float(np.quantile(wall, 0.01))
+        put(
+            'policy.wall_d0',
+            round(max(q, 0.02 * spec.arena), 6),
+            f'the 1st percentile of the distances to the nearest wall ({q:.4g}), at least 2 % of the half width',
+        )
+        put(
+            'policy.wall_phi',
+            round(_gain_phi(limit, float(pol['wall_d0'])), 6),
+            'lambda = phi^2 = command_limit wall_d0^3 / 8, as for collisions',
+        )
+    else:
+        put('policy.wall_d0', 1.0, 'unused: the scenario has no arena')
+        put('policy.wall_phi', 1.0, 'unused: the scenario has no arena')
+    offsets = []
+    for p in pos:
+        p = p[:: max(1, p.shape[0] * p.shape[1] ** 2 // 2_000_000)]  # bounded memory for large swarms
+        diff = p[:, None, :, :] - p[:, :, None, :]  # [F, n, n, dim]
+        dist = np.linalg.norm(diff, axis=-1)
+        near = (dist <= d_cr) & (dist > 0)
+        offsets.append(diff[near].ravel())
+    offsets = np.concatenate(offsets)
+    pos_scale = float(np.sqrt(np.mean(offsets**2))) if offsets.size else median_nn
+    put(
+        'policy.position_scale',
+        round(pos_scale or 1.0, 6),
+        'the RMS of the offsets to the neighbours within d_cr (the network sees positions / this)',
+    )
+    if spec.velocity is not None:
+        put(
+            'policy.velocity_scale',
+            round(speed_rms or 1.0, 6),
+            'the RMS of the velocity entries (the network sees velocities / this)',
+        )
+    else:
+        put('policy.velocity_scale', 1.0, f'1: the state has no velocity ({spec.state})')
+    scales = [float(pol['position_scale'])]
+    if spec.velocity is not None:
+        scales.append(float(pol['velocity_scale']))
+    std = 0.02 * min(scales)
+    put(
+        'noise.variance',
+        float(f'{std * std:.6g}'),
+        f'(2 % of the smaller input scale)^2: std {std:.4g} on every input entry',
+    )
+    put(
+        'augment.rotate',
+        spec.arena is None,
+        'true: no arena, rotations are a symmetry of the scenario'
+        if spec.arena is None
+        else 'false: the arena breaks rotational symmetry',
+    )
+    return cfg, record
+
+
+def _velocity_entries(frames, trajectories, spec: Scenario, dt: float) -> np.ndarray:
+    """Velocity components ``[...]``: the state's, else differences of positions."""
+    if spec.velocity is not None:
+        return np.concatenate([f[..., spec.velocity].ravel() for f in frames])
+    parts = [
+        np.diff(np.asarray(s, dtype=np.float64)[..., spec.position], axis=1).ravel() / dt
+        for s in trajectories
+    ]
+    return np.concatenate(parts) if parts else np.zeros(0)

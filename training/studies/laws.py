@@ -1,0 +1,172 @@
+"""Three swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+(``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
+swarms of your own").
+
+* ``aggregate2d``: first order 2D (``position`` + ``velocity``): aggregation with short-range
+  repulsion between robots within ``R``, plus a chiral twist about the neighbours' centroid, so
+  the aggregate keeps turning instead of freezing.
+* ``flock3d_arena``: 3D double integrator in a box (``position_velocity`` + ``acceleration``,
+  arena half width 4 m): an Olfati-Saber-like pair potential with equilibrium spacing, velocity
+  consensus, self-propulsion to a cruise speed and spring walls.
+* ``mill2d``: 2D D'Orsogna milling (``position_velocity`` + ``acceleration``): self-propulsion
+  (alpha - beta |v|^2) v, a Morse potential, and a weak left turn that picks one sense of rotation.
+
+Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
+it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
+step the learnt policy is rolled out with. Units: metres and seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Dict
+
+import numpy as np
+
+from knode_swarm_ros.core.rollout import zoh_step
+from knode_swarm_ros.core.scenarios import Scenario, scenario_from_dict
+
+__all__ = ['Law', 'LAWS', 'simulate', 'initial_states']
+
+
+@dataclass(frozen=True)
+class Law:
+    """A swarm law: its scenario, its command function and the spread of its starts."""
+
+    name: str
+    scenario: Scenario
+    command: Callable[[np.ndarray], np.ndarray]
+    start_radius_per_sqrt_n: float  # starts uniform in a disc/ball of radius this x sqrt(n)
+    start_speed: float  # initial speeds (acceleration laws), uniform directions
+    steps: int  # frames per trajectory - 1
+
+
+def _offsets(p: np.ndarray):
+    """``r [S, n, n, dim]`` = p_j - p_i and distances ``[S, n, n]`` (inf on the diagonal)."""
+    r = p[:, None, :, :] - p[:, :, None, :]
+    d = np.linalg.norm(r, axis=-1)
+    n = p.shape[1]
+    d[:, np.arange(n), np.arange(n)] = np.inf
+    return r, d
+
+
+def _clip_norm(u: np.ndarray, limit: float) -> np.ndarray:
+    norm = np.linalg.norm(u, axis=-1, keepdims=True)
+    return u * np.minimum(1.0, limit / np.maximum(norm, 1e-12))
+
+
+def _left(v: np.ndarray) -> np.ndarray:
+    """v turned by +90 degrees (2D)."""
+    return np.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+def aggregate2d(
+    z: np.ndarray, R: float = 2.0, r0: float = 0.8, a: float = 1.0, twist: float = 0.4
+) -> np.ndarray:
+    p = z[..., :2]
+    r, d = _offsets(p)
+    near = d < R
+    g = np.where(near, a * (1.0 - (r0 / np.minimum(d, 1e6)) ** 2), 0.0)  # < 0: repulsion inside r0
+    count = near.sum(axis=2, keepdims=True)
+    # the mean over the neighbours: a denser swarm does not pull harder
+    u = (g[..., None] * r / np.where(near, d, 1.0)[..., None]).sum(axis=2) / np.maximum(count, 1)
+    centroid_offset = (r * near[..., None]).sum(axis=2) / np.maximum(count, 1)
+    u = u + twist * _left(centroid_offset)
+    return _clip_norm(u, 1.0)
+
+
+def flock3d_arena(
+    z: np.ndarray,
+    w: float = 4.0,
+    R: float = 2.5,
+    spacing: float = 1.0,
+    v0: float = 1.0,
+    wall_range: float = 1.2,
+) -> np.ndarray:
+    p, v = z[..., :3], z[..., 3:]
+    r, d = _offsets(p)
+    near = d < R
+    dn = np.where(near, d, 1.0)
+    pair = np.where(near, 1.5 * (dn - spacing) / np.maximum(dn, 0.2) ** 2, 0.0)  # spring, stiff when close
+    a = (pair[..., None] * r / dn[..., None]).sum(axis=2)
+    a += (
+        0.6
+        * ((v[:, None, :, :] - v[:, :, None, :]) * near[..., None]).sum(axis=2)
+        / np.maximum(near.sum(axis=2, keepdims=True), 1)
+    )
+    speed2 = (v**2).sum(-1, keepdims=True)
+    a += 0.5 * (v0**2 - speed2) * v
+    a += 6.0 * (np.maximum(0.0, -w + wall_range - p) - np.maximum(0.0, p - (w - wall_range)))
+    return _clip_norm(a, 6.0)
+
+
+def mill2d(
+    z: np.ndarray,
+    alpha: float = 1.0,
+    beta: float = 0.5,
+    c_a: float = 1.0,
+    l_a: float = 2.0,
+    c_r: float = 2.0,
+    l_r: float = 0.5,
+    turn: float = 0.3,
+) -> np.ndarray:
+    p, v = z[..., :2], z[..., 2:]
+    r, d = _offsets(p)
+    dd = np.where(np.isfinite(d), d, 1.0)
+    # -dU/dd of U = c_r exp(-d / l_r) - c_a exp(-d / l_a), along r / d (towards the neighbour)
+    force = np.where(np.isfinite(d), c_a / l_a * np.exp(-dd / l_a) - c_r / l_r * np.exp(-dd / l_r), 0.0)
+    a = (force[..., None] * r / dd[..., None]).sum(axis=2) / p.shape[1] * 10.0  # per 10 robots
+    speed2 = (v**2).sum(-1, keepdims=True)
+    a += (alpha - beta * speed2) * v + turn * _left(v)
+    return _clip_norm(a, 5.0)
+
+
+def _spec(name: str, dims: int, state: str, command: str, arena=None) -> Scenario:
+    return scenario_from_dict(
+        dict(name=name, dimensions=dims, state=state, command=command, dt=0.05, arena=arena), name
+    )
+
+
+LAWS: Dict[str, Law] = {
+    'aggregate2d': Law(
+        'aggregate2d', _spec('aggregate2d', 2, 'position', 'velocity'), aggregate2d, 0.55, 0.0, 400
+    ),
+    'flock3d_arena': Law(
+        'flock3d_arena',
+        _spec('flock3d_arena', 3, 'position_velocity', 'acceleration', {'half_width': 4.0}),
+        flock3d_arena,
+        0.5,
+        0.8,
+        400,
+    ),
+    'mill2d': Law('mill2d', _spec('mill2d', 2, 'position_velocity', 'acceleration'), mill2d, 0.6, 1.0, 400),
+}
+
+
+def initial_states(law: Law, count: int, n: int, seed: int) -> np.ndarray:
+    """``[count, n, d]`` starts: positions uniform in a disc (ball) of radius
+    ``start_radius_per_sqrt_n * sqrt(n)``, speeds ``start_speed`` in uniform directions."""
+    spec = law.scenario
+    rng = np.random.default_rng(seed)
+    dim = spec.dimensions
+    direction = rng.normal(size=(count, n, dim))
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    radius = law.start_radius_per_sqrt_n * np.sqrt(n) * rng.random((count, n, 1)) ** (1.0 / dim)
+    p = direction * radius
+    if spec.arena is not None:
+        p = np.clip(p, -0.8 * spec.arena, 0.8 * spec.arena)
+    if spec.velocity is None:
+        return p
+    heading = rng.normal(size=(count, n, dim))
+    heading /= np.linalg.norm(heading, axis=-1, keepdims=True)
+    return np.concatenate([p, law.start_speed * heading], axis=-1)
+
+
+def simulate(law: Law, z0: np.ndarray, steps: int) -> np.ndarray:
+    """Trajectories ``[S, steps + 1, n, d]`` of ``law`` from ``z0 [S, n, d]``."""
+    out = np.empty((z0.shape[0], steps + 1) + z0.shape[1:])
+    out[:, 0] = z = np.asarray(z0, dtype=np.float64)
+    for t in range(steps):
+        z = zoh_step(z, law.command(z), law.scenario, law.scenario.dt)
+        out[:, t + 1] = z
+    return out
