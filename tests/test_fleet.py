@@ -112,7 +112,7 @@ def test_the_worked_examples_load():
 
 
 def test_unreadable_files_are_named(tmp_path):
-    with pytest.raises(ConfigError, match='cannot read fleet file .*none.yaml'):
+    with pytest.raises(ConfigError, match='fleet file .*none.yaml: cannot be read'):
         load_fleet(tmp_path / 'none.yaml')
     bad = tmp_path / 'bad.yaml'
     bad.write_text('robots: [\n')

@@ -30,6 +30,7 @@ from importlib import resources
 from typing import Any, Dict, Mapping, Optional, Tuple, Union
 
 from .errors import ConfigError
+from .yaml_file import read_yaml
 
 __all__ = [
     'Scenario',
@@ -202,16 +203,8 @@ def scenario_from_dict(data: Any, where: str = 'scenario') -> Scenario:
 
 
 def _read_yaml(path: str) -> Scenario:
-    import yaml
-
     where = f'scenario file {path}'
-    try:
-        with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
-    except OSError as exc:
-        raise ScenarioError(f'{where}: cannot be read ({exc.strerror or exc})') from None
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f'{where}: not valid YAML ({exc})') from None
+    data = read_yaml(path, ScenarioError, where)
     return scenario_from_dict(data, where)
 
 

@@ -36,6 +36,7 @@ from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.estimator import DEFAULT_WINDOW
+from knode_swarm_ros.core.yaml_file import read_yaml
 
 __all__ = [
     'Fleet',
@@ -241,15 +242,7 @@ def parse_fleet(data: Any, path: str = 'fleet') -> Fleet:
 
 
 def _read_yaml(path: str) -> Any:
-    import yaml
-
-    try:
-        with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
-    except OSError as exc:
-        raise ConfigError(f'cannot read fleet file {path}: {exc.strerror or exc}') from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f'{path}: not valid YAML ({exc})') from None
+    data = read_yaml(path, ConfigError, f'fleet file {path}')
     if not isinstance(data, Mapping):
         raise ConfigError(f'{path}: a fleet file must be a YAML mapping')
     return data
