@@ -330,3 +330,24 @@ def test_small_things_of_the_first_hour():
 def test_torchscript_deprecation_notices_are_filtered_and_documented(pytestconfig):
     assert any('torch.jit.script' in f for f in pytestconfig.getini('filterwarnings'))
     assert 'TorchScript' in (ROOT / 'docs' / 'testing.md').read_text().split('## Warnings')[1]
+
+
+def test_with_an_explicit_rate_mismatch_the_launcher_warns_and_its_agents_do_not_repeat_it(tmp_path):
+    """The launcher says a mismatch once (``--rate``); its agents run with ``rate_check: accept``,
+    which keeps the check (``refuse`` still refuses) but logs nothing; a lone agent still warns."""
+    from test_control_period import _logic
+
+    from knode_swarm_ros.nodes import swarm
+
+    args = ['--scenario', 'boids3d', '--mode', 'realtime', '--rate', '20', '--robots', '3']
+    args += ['--record', str(tmp_path / 'r.npz'), '--domain-id', '40', '--log-dir', str(tmp_path)]
+    plan = swarm.plan_run(swarm.build_parser().parse_args(args))
+    _, files = swarm.build_commands(plan)
+    agents = [p for name, p in files.items() if 'agent' in str(name)]
+    assert agents and all('accept' in json.dumps(p) and '"warn"' not in json.dumps(p) for p in agents)
+    assert _logic(20.0, 1 / 60, rate_check='warn').events  # a lone agent: one line
+    assert _logic(20.0, 1 / 60, rate_check='accept').events == []  # a launcher's agent: none
+    refuse = swarm.plan_run(swarm.build_parser().parse_args([*args, '--rate-check', 'refuse']))
+    assert all(
+        'refuse' in json.dumps(p) for n, p in swarm.build_commands(refuse)[1].items() if 'agent' in str(n)
+    )

@@ -105,7 +105,9 @@ class AgentConfig:
     command_limit: float = 0.0
     parity_batch: bool = True
     control_rate: float = 0.0  # Hz (realtime); 0: not known, no period check
-    rate_check: str = 'warn'  # control period != policy dt: 'warn' once or 'refuse' (control_period.py)
+    rate_check: str = (
+        'warn'  # control period != policy dt: 'warn' once, 'refuse' or 'accept' (control_period.py)
+    )
     tick_on: str = 'state'  # realtime: tick on the own state's arrival, or on the timer (realtime_tick.py)
 
     def validate(self) -> None:
@@ -232,7 +234,8 @@ class AgentLogic:
         if self.period is not None and not self.period.equal:
             if config.rate_check == 'refuse':
                 raise ConfigError(f"parameter 'control_rate' (rate_check refuse): {self.period.describe()}")
-            self.events.append(self.period.describe())
+            if config.rate_check == 'warn':
+                self.events.append(self.period.describe())
         # Realtime ticks on the own state's arrival (None: on the control timer).
         period_s = 1.0 / config.control_rate if config.control_rate > 0 else self.dt
         self.ticks = (

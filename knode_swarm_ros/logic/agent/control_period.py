@@ -26,7 +26,8 @@ __all__ = [
 ]
 
 #: What the agent does when its control period differs from the policy's dt.
-RATE_CHECKS = ('warn', 'refuse')
+# accept: run without a log line, where someone has said it once already (the swarm launcher)
+RATE_CHECKS = ('warn', 'refuse', 'accept')
 #: Relative tolerance of "equal" and "whole multiple" (rates are floats: 1 / 20.0 vs 0.05).
 PERIOD_TOLERANCE = 1e-6
 

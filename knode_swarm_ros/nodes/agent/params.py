@@ -202,7 +202,7 @@ def declare_agent_parameters(node) -> AgentParams:
             'rate_check',
             'warn',
             "realtime: when 1 / control_rate differs from the policy's dt, "
-            'warn once (warn) or refuse to start (refuse)',
+            'warn once (warn), refuse to start (refuse) or run without a word (accept: the launcher has warned)',
             choices=RATE_CHECKS,
         ),
         parity_batch=d(
