@@ -214,12 +214,34 @@ def test_swarm_fleet_passes_the_fleet_to_every_node_and_runs_its_ids(tmp_path):
     assert params['recorder.yaml']['fleet'] == str(fleet) and params['agent.yaml']['fleet'] == str(fleet)
 
 
+def test_a_motion_capture_faster_than_the_policy_is_simulated_in_sub_steps(tmp_path):
+    from knode_swarm_ros.nodes.simulator.node import substeps_of
+    from knode_swarm_ros.nodes.swarm.commands import build_commands
+    from knode_swarm_ros.nodes.swarm.plan import plan_run
+
+    fleet = tmp_path / 'fleet.yaml'
+    fleet.write_text(
+        'robots: {a: {id: 4}, b: {id: 9}}\nstate: {topic: "/m/{name}/pose", type: pose, rate: 100}\n'
+    )
+    for extra in (('--pose-rate', 100), ()):  # the fleet's stated rate is the default
+        plan = plan_run(_args(tmp_path, '--fleet', fleet, '--mode', 'realtime', *extra))
+        sim = {path.name: p for path, p in build_commands(plan)[1].items()}['simulator.yaml']
+        assert sim['state_rate'] == 100.0 and plan.pose_rate == 100.0
+        assert substeps_of(sim['state_rate'], plan.dt, 'realtime') == int(round(100 * plan.dt))
+    assert substeps_of(0.0, 0.05, 'realtime') == 1 and substeps_of(100.0, 0.05, 'realtime') == 5
+    for rate, mode in ((90.0, 'realtime'), (100.0, 'lockstep')):
+        with pytest.raises(ConfigError, match='state_rate'):
+            substeps_of(rate, 0.05, mode)
+
+
 @pytest.mark.parametrize(
     'extra, match',
     [
         (('--pose-noise', 0.01), 'need --fleet'),
         (('--fleet', 'ODOM', '--pose-noise', 0.01), 'gives odometry, not poses'),
-        (('--fleet', 'POSE', '--pose-rate', 100, '--mode', 'realtime'), 'at most 1 / dt'),
+        (('--fleet', 'POSE', '--pose-rate', 105, '--mode', 'realtime'), 'at most 1 / dt'),
+        (('--fleet', 'POSE', '--pose-rate', 100), 'realtime only'),
+        (('--fleet', 'RATED', '--pose-rate', 50, '--mode', 'realtime'), 'states rate 100 Hz'),
         (('--fleet', 'POSE', '--robots', 3), 'has 2 robots'),
     ],
 )
@@ -228,6 +250,7 @@ def test_swarm_fleet_flags_are_checked(tmp_path, extra, match):
 
     (tmp_path / 'odom.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\n')
     (tmp_path / 'pose.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\nstate: {type: pose}\n')
-    extra = [str(tmp_path / f'{e.lower()}.yaml') if e in ('ODOM', 'POSE') else e for e in extra]
+    (tmp_path / 'rated.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\nstate: {type: pose, rate: 100}\n')
+    extra = [str(tmp_path / f'{e.lower()}.yaml') if e in ('ODOM', 'POSE', 'RATED') else e for e in extra]
     with pytest.raises(ConfigError, match=match):
         plan_run(_args(tmp_path, *extra))

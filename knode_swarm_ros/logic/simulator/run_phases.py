@@ -37,7 +37,7 @@ class LifecycleConfig:
 
     steps: int  # 0: until stopped
     mode: str  # 'lockstep' or 'realtime'
-    publish_every: int = 1  # realtime: steps between published frames
+    publish_every: int = 1  # realtime: sub-steps (steps without sub-steps) between published frames
     real_time_factor: float = 1.0
     lockstep_timeout: float = 5.0
     startup_timeout: float = 120.0
@@ -89,6 +89,7 @@ class SimLifecycle:
         self.wall0 = clock()
         self.run_wall0: Optional[float] = None
         self.run_step0 = 0
+        self.run_tick0 = 0
         self.done_wall: Optional[float] = None
         self.last_publish = -1e9
         self.overruns = 0
@@ -232,17 +233,18 @@ class SimLifecycle:
         if self.phase != 'running':
             return
         c = self.config
-        rtf, dt = c.real_time_factor, self.sim.dt
-        due = int((now - self.run_wall0) * rtf / dt) - (self.sim.step - self.run_step0)
-        if due > _MAX_CATCH_UP:  # too far behind (the machine is overloaded): drop time, count it
-            self.overruns += due - _MAX_CATCH_UP
-            self.run_wall0 += (due - _MAX_CATCH_UP) * dt / rtf
-            due = _MAX_CATCH_UP
+        rtf, h = c.real_time_factor, self.sim.h  # h: one sub-step (dt without sub-steps)
+        due = int((now - self.run_wall0) * rtf / h) - (self.sim.tick - self.run_tick0)
+        catch_up = _MAX_CATCH_UP * self.sim.substeps
+        if due > catch_up:  # too far behind (the machine is overloaded): drop time, count it
+            self.overruns += due - catch_up
+            self.run_wall0 += (due - catch_up) * h / rtf
+            due = catch_up
         for _ in range(max(due, 0)):
             if c.steps and self.sim.step >= c.steps:
                 break
             self.sim.advance()
-            if self.sim.step % c.publish_every == 0:
+            if self.sim.tick % c.publish_every == 0:
                 self.publish()
         if c.steps and self.sim.step >= c.steps:
             self._done()
@@ -284,12 +286,13 @@ class SimLifecycle:
         self.phase = 'running'
         self.run_wall0 = now
         self.run_step0 = self.sim.step
+        self.run_tick0 = self.sim.tick
         self.last_progress = (now, self.sim.step)
         self.out.publish_status()
         self.sim.note_published(now)
         self.last_publish = now
         if self.config.mode == 'realtime':
-            self.out.start_physics(self.sim.dt / self.config.real_time_factor)
+            self.out.start_physics(self.sim.h / self.config.real_time_factor)
         else:
             self._lockstep_advance()
 

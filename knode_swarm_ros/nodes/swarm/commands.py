@@ -62,7 +62,9 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
     fleet = getattr(plan, 'fleet', '')
     if fleet:  # every node speaks the fleet's names, topics and types
         sim.update(fleet=fleet, pose_noise=float(plan.pose_noise))
-        if plan.pose_rate is not None:
+        if plan.pose_rate is not None and plan.pose_rate * plan.dt > 1.0 + 1e-9:
+            sim['state_rate'] = float(plan.pose_rate)  # a motion capture faster than the policy: sub-steps
+        elif plan.pose_rate is not None:
             sim['publish_rate'] = float(plan.pose_rate)
     rec = {
         'scenario': plan.scenario,
