@@ -254,3 +254,42 @@ def test_swarm_fleet_flags_are_checked(tmp_path, extra, match):
     extra = [str(tmp_path / f'{e.lower()}.yaml') if e in ('ODOM', 'POSE', 'RATED') else e for e in extra]
     with pytest.raises(ConfigError, match=match):
         plan_run(_args(tmp_path, *extra))
+
+
+def test_the_launcher_names_the_fleet_robots_no_agent_has_heard(tmp_path, capsys):
+    import types
+
+    from knode_swarm_ros.logic.reporting import write_json_report
+    from knode_swarm_ros.logic.simulator.run_phases import LifecycleConfig, SimLifecycle
+    from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim, initial_state
+    from knode_swarm_ros.nodes.swarm.report import name_never_heard
+
+    z0, _ = initial_state('flock2d', 3, 0)
+    sim = SwarmSim('flock2d', z0, DT, 'realtime')
+    logs, now = [], [0.0]
+    out = types.SimpleNamespace(
+        publish_frame=lambda: None,
+        publish_status=lambda: None,
+        log=lambda level, text: logs.append((level, text)),
+        start_physics=lambda period: None,
+        stop_physics=lambda: None,
+        finish=lambda code: None,
+    )
+    life = SimLifecycle(
+        sim, LifecycleConfig(steps=5, mode='realtime', startup_timeout=10.0), out, {}, lambda: now[0]
+    )
+    for r in range(
+        3
+    ):  # cf9 (robot 2) never publishes: every agent says so; robot 0's agent also lacks cf5 for now
+        life.on_agent_status(r, {'ready': False, 'missing_names': ['cf9'] + (['cf5'] if r == 0 else [])})
+    life.on_agent_status(0, {'ready': False, 'missing_names': ['cf9']})  # the newest status counts
+    now[0] = 11.0
+    life.on_watchdog(now[0])
+    assert logs[-1][0] == 'error' and logs[-1][1].endswith('never heard by the agents: cf9')
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    write_json_report(str(run_dir / 'simulator.json'), life.report())
+    assert name_never_heard(types.SimpleNamespace(run_dir=run_dir)) == ['cf9']
+    assert 'never heard by the agents: cf9' in capsys.readouterr().out
+    (run_dir / 'simulator.json').unlink()
+    assert name_never_heard(types.SimpleNamespace(run_dir=run_dir)) == []

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, Dict, Optional, Protocol
+from typing import Callable, Dict, List, Optional, Protocol
 
 from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, dt_mismatch
 from knode_swarm_ros.logic.reporting import Throttle
@@ -82,6 +82,7 @@ class SimLifecycle:
         self.phase = 'waiting'
         self.exit_code: Optional[int] = None
         self.agent_ready: Dict[int, bool] = {}
+        self.agent_missing: Dict[int, List[str]] = {}  # robot -> names its agent never heard (newest status)
         self.recorder_ready = False
         self.recorder_saved = False
         self.recorder_progress = -1
@@ -127,6 +128,10 @@ class SimLifecycle:
             fields['final_step'] = self.final_frame()
         return fields
 
+    def never_heard(self) -> List[str]:
+        """Names of the robots some agent has never heard, by the agents' newest statuses (sorted)."""
+        return sorted({name for names in self.agent_missing.values() for name in names})
+
     # --- events --------------------------------------------------------------------
     def on_command(self, robot: int, ns: int, u, now: float) -> str:
         """A robot's command stamped ``ns``; returns the :meth:`SwarmSim.offer` outcome."""
@@ -164,6 +169,8 @@ class SimLifecycle:
         if status is None:
             return
         self.agent_ready[robot] = bool(status.get('ready'))
+        names = status.get('missing_names')
+        self.agent_missing[robot] = [str(n) for n in names] if isinstance(names, list) else []
         problem = dt_mismatch(status.get('dt'), self.sim.dt)
         if problem and self.exit_code is None:
             # Each step would be integrated over a different time than the policy assumes: refuse.
@@ -268,10 +275,12 @@ class SimLifecycle:
             return
         if now - self.wall0 > c.startup_timeout:
             who = ([f'agents {_ids(agents)}'] if agents else []) + (['the recorder'] if recorder else [])
+            silent = self.never_heard()
             self.out.log(
                 'error',
                 f'not ready after {c.startup_timeout:g} s: {" and ".join(who)} '
-                '(an agent is ready once it has heard every robot)',
+                '(an agent is ready once it has heard every robot)'
+                + (f'; never heard by the agents: {", ".join(silent)}' if silent else ''),
             )
             self._finish(EXIT_FAILURE)
             return
@@ -335,6 +344,7 @@ class SimLifecycle:
             exit_code=EXIT_OK if self.exit_code is None else self.exit_code,
             frames_published=self.frames,
             overruns=self.overruns,
+            never_heard=self.never_heard(),
             **self.sim.report(),
         )
         if self.run_wall0 is not None:
