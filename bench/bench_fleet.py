@@ -6,8 +6,9 @@ Swarm part: ``--robots`` robots of the shipped 20 Hz flock2d policy in realtime 
 each of ``--starts`` held-out seeded starts (seeds 100, 101, ...), run twice by the launcher:
 once with exact Odometry (no fleet) and once with a fleet that gives PoseStamped only
 (``swarm --fleet F --pose-noise SIGMA --pose-rate HZ``: the agents estimate every velocity).
-Per run: the final avd (from the recorded positions' differences, the same rule for both) and
-the smallest pair distance after the first second. The fleet states the motion capture's rate,
+Per run: the final avd of the true velocities (the simulator's final states, its report: a
+pose-only recording holds the noisy poses, whose differences would measure the noise) and the
+smallest pair distance after the first second (recorded positions). The fleet states the motion capture's rate,
 so its velocity window is the default for that rate (``core.estimator.window_for_rate``: 10
 samples at 100 Hz); above 1 / dt the simulator takes sub-steps and publishes every one.
 ``--budget-s``: start no new held-out start after that many seconds (the figures say how many ran).
@@ -79,10 +80,11 @@ def estimator_figures(window: int, rate: float, sigma: float, streams: int, seed
 
 def run_swarm(tmp: Path, name: str, seed: int, args, fleet=None) -> dict:
     record = tmp / f'{name}_{seed}.npz'
+    logs = tmp / f'{name}_{seed}_logs'
     cmd = [
         sys.executable, '-m', 'knode_swarm_ros.nodes.swarm', '--mode', 'realtime', '--rate', '20',
         '--robots', str(args.robots), '--steps', str(args.steps), '--seed', str(seed), '--record', str(record),
-        '--no-figure', '--quiet', '--agents-per-process', str(args.agents_per_process),
+        '--no-figure', '--quiet', '--agents-per-process', str(args.agents_per_process), '--log-dir', str(logs),
     ]  # fmt: skip
     if fleet is not None:
         cmd += ['--fleet', str(fleet), '--pose-noise', str(args.noise), '--pose-rate', str(args.pose_rate)]
@@ -91,8 +93,8 @@ def run_swarm(tmp: Path, name: str, seed: int, args, fleet=None) -> dict:
         return {'seed': seed, 'error': proc.returncode, 'tail': (proc.stdout + proc.stderr)[-600:]}
     data = load_trajectories(record)
     p = data.states[0][..., data.spec.position]  # [T, n, 2]
-    v = np.diff(p, axis=0) / data.dt
-    final_avd = float(avd(v[-1]))
+    true = np.array(json.loads((logs / 'simulator.json').read_text())['states'])
+    final_avd = float(avd(true[:, data.spec.velocity]))
     after = int(round(1.0 / data.dt))
     gaps = np.linalg.norm(p[after:, :, None] - p[after:, None], axis=-1)
     n = p.shape[1]

@@ -433,7 +433,8 @@ class SwarmSim:
 
     # --- reporting -----------------------------------------------------------------
     def report(self) -> Dict[str, Any]:
-        """JSON-able figures: steps, counters, latency percentiles (milliseconds)."""
+        """JSON-able figures: steps, counters, latency percentiles (milliseconds), and the true
+        states ``[n, d]`` now (``states``: what a noisy motion capture hides)."""
         lat = percentiles([x * 1e3 for x in self.latency])
         return {
             'step': self.step,
@@ -441,4 +442,5 @@ class SwarmSim:
             'lost': sorted(self.lost),
             'counters': dict(self.counters.__dict__),
             'latency_ms': {k: v for k, v in lat.items()},
+            'states': self.states.tolist(),
         }
