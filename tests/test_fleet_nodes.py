@@ -293,3 +293,29 @@ def test_the_launcher_names_the_fleet_robots_no_agent_has_heard(tmp_path, capsys
     assert 'never heard by the agents: cf9' in capsys.readouterr().out
     (run_dir / 'simulator.json').unlink()
     assert name_never_heard(types.SimpleNamespace(run_dir=run_dir)) == []
+
+
+def test_the_launcher_gives_the_fleet_to_the_monitor_and_the_lifecycle_manager(tmp_path):
+    from knode_swarm_ros.nodes.swarm.cli import build_parser
+    from knode_swarm_ros.nodes.swarm.commands import build_commands
+    from knode_swarm_ros.nodes.swarm.plan import plan_run
+
+    fleet = tmp_path / 'fleet.yaml'
+    fleet.write_text('robots: {a: {id: 4}, b: {id: 9}}\n')
+    fleet = str(fleet)
+    args = [
+        '--record',
+        str(tmp_path / 'r.npz'),
+        '--domain-id',
+        '7',
+        '--fleet',
+        fleet,
+        '--managed',
+        '--monitor',
+        '0',
+    ]
+    commands, files = build_commands(plan_run(build_parser().parse_args(args)))
+    params = {path.name: p for path, p in files.items()}
+    assert params['monitor.yaml']['fleet'] == fleet
+    assert f'fleet:={fleet}' in ' '.join(commands['lifecycle_manager'])
+    assert {'agent_4', 'agent_9'} <= set(commands)
