@@ -45,7 +45,7 @@ __all__ = [
 
 #: The default lag (seconds): the 100 Hz design point's 10 samples. At 2 mm of noise per axis it
 #: gives 22 mm/s of velocity noise at 100 Hz; a slower stream gets the same lag from fewer samples
-#: (more noise: 51 mm/s at 20 Hz, 3 samples), a faster one less noise.
+#: (more noise: 28 mm/s at 20 Hz, 3 samples), a faster one less noise.
 DEFAULT_LAG_S = 0.045
 
 #: Samples per fit when the stream's rate is not stated: the 100 Hz window of DEFAULT_LAG_S.
