@@ -5,6 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from knode_swarm_ros.core.estimator import DEFAULT_WINDOW, window_for_rate
 from knode_swarm_ros.logic.common import ConfigError, command_topic, odom_topic
 from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet, parse_fleet, resolve_topic
 
@@ -65,7 +66,7 @@ def test_topic_resolution_absolute_and_relative():
     'data, message',
     [
         ({**ISSUE, 'extra': 1}, r'top level: unknown key\(s\) extra'),
-        (_with(state__rate=100), r'state: unknown key\(s\) rate'),
+        (_with(state__frequency=100), r'state: unknown key\(s\) frequency'),
         ({**ISSUE, 'robots': {'cf1': {'id': 0, 'colour': 'red'}}}, r'robots: cf1: unknown key\(s\) colour'),
         ({**ISSUE, 'robots': {'cf1': {'id': 3}, 'cf2': {'id': 3}}}, "robots: cf2: id 3 is also robot cf1's"),
         ({**ISSUE, 'robots': {'cf1': {}}}, 'robots: cf1: no id'),
@@ -86,6 +87,8 @@ def test_topic_resolution_absolute_and_relative():
         (_with(command__interface='fly'), "command: interface 'fly' is not one of"),
         (_with(state__velocity_window=1), 'velocity_window must be an integer >= 2'),
         (_with(command__speed_limit=0), 'speed_limit must be a number > 0'),
+        (_with(state__rate=0), 'state: rate must be a number > 0'),
+        (_with(state__rate='fast'), 'state: rate must be a number > 0'),
         ({'state': ISSUE['state']}, 'no robots: section'),
         ([1, 2], 'must be a YAML mapping'),
     ],
@@ -93,6 +96,15 @@ def test_topic_resolution_absolute_and_relative():
 def test_refused_naming_the_entry(data, message):
     with pytest.raises(ConfigError, match=message):
         parse_fleet(data, 'f.yaml')
+
+
+def test_the_velocity_window_defaults_to_the_lag_of_the_100_hz_design_at_the_stated_rate():
+    assert [window_for_rate(r) for r in (100, 120, 20, 10, 1)] == [10, 12, 3, 2, 2]
+    assert parse_fleet(ISSUE).state.velocity_window == DEFAULT_WINDOW == 10  # no rate stated
+    assert parse_fleet(_with(state__rate=20)).state.velocity_window == 3
+    assert parse_fleet(_with(state__rate=20)).state.rate == 20.0
+    assert parse_fleet(_with(state__rate=20, state__velocity_window=7)).state.velocity_window == 7
+    assert load_fleet(FLEETS / 'crazyswarm2.yaml').state.velocity_window == 10
 
 
 def test_a_crazyswarm2_crazyflies_yaml_is_a_robot_list():

@@ -214,12 +214,34 @@ def test_swarm_fleet_passes_the_fleet_to_every_node_and_runs_its_ids(tmp_path):
     assert params['recorder.yaml']['fleet'] == str(fleet) and params['agent.yaml']['fleet'] == str(fleet)
 
 
+def test_a_motion_capture_faster_than_the_policy_is_simulated_in_sub_steps(tmp_path):
+    from knode_swarm_ros.nodes.simulator.node import substeps_of
+    from knode_swarm_ros.nodes.swarm.commands import build_commands
+    from knode_swarm_ros.nodes.swarm.plan import plan_run
+
+    fleet = tmp_path / 'fleet.yaml'
+    fleet.write_text(
+        'robots: {a: {id: 4}, b: {id: 9}}\nstate: {topic: "/m/{name}/pose", type: pose, rate: 100}\n'
+    )
+    for extra in (('--pose-rate', 100), ()):  # the fleet's stated rate is the default
+        plan = plan_run(_args(tmp_path, '--fleet', fleet, '--mode', 'realtime', *extra))
+        sim = {path.name: p for path, p in build_commands(plan)[1].items()}['simulator.yaml']
+        assert sim['state_rate'] == 100.0 and plan.pose_rate == 100.0
+        assert substeps_of(sim['state_rate'], plan.dt, 'realtime') == int(round(100 * plan.dt))
+    assert substeps_of(0.0, 0.05, 'realtime') == 1 and substeps_of(100.0, 0.05, 'realtime') == 5
+    for rate, mode in ((90.0, 'realtime'), (100.0, 'lockstep')):
+        with pytest.raises(ConfigError, match='state_rate'):
+            substeps_of(rate, 0.05, mode)
+
+
 @pytest.mark.parametrize(
     'extra, match',
     [
         (('--pose-noise', 0.01), 'need --fleet'),
         (('--fleet', 'ODOM', '--pose-noise', 0.01), 'gives odometry, not poses'),
-        (('--fleet', 'POSE', '--pose-rate', 100, '--mode', 'realtime'), 'at most 1 / dt'),
+        (('--fleet', 'POSE', '--pose-rate', 105, '--mode', 'realtime'), 'at most 1 / dt'),
+        (('--fleet', 'POSE', '--pose-rate', 100), 'realtime only'),
+        (('--fleet', 'RATED', '--pose-rate', 50, '--mode', 'realtime'), 'states rate 100 Hz'),
         (('--fleet', 'POSE', '--robots', 3), 'has 2 robots'),
     ],
 )
@@ -228,6 +250,72 @@ def test_swarm_fleet_flags_are_checked(tmp_path, extra, match):
 
     (tmp_path / 'odom.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\n')
     (tmp_path / 'pose.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\nstate: {type: pose}\n')
-    extra = [str(tmp_path / f'{e.lower()}.yaml') if e in ('ODOM', 'POSE') else e for e in extra]
+    (tmp_path / 'rated.yaml').write_text('robots: {a: {id: 4}, b: {id: 9}}\nstate: {type: pose, rate: 100}\n')
+    extra = [str(tmp_path / f'{e.lower()}.yaml') if e in ('ODOM', 'POSE', 'RATED') else e for e in extra]
     with pytest.raises(ConfigError, match=match):
         plan_run(_args(tmp_path, *extra))
+
+
+def test_the_launcher_names_the_fleet_robots_no_agent_has_heard(tmp_path, capsys):
+    import types
+
+    from knode_swarm_ros.logic.reporting import write_json_report
+    from knode_swarm_ros.logic.simulator.run_phases import LifecycleConfig, SimLifecycle
+    from knode_swarm_ros.logic.simulator.swarm_sim import SwarmSim, initial_state
+    from knode_swarm_ros.nodes.swarm.report import name_never_heard
+
+    z0, _ = initial_state('flock2d', 3, 0)
+    sim = SwarmSim('flock2d', z0, DT, 'realtime')
+    logs, now = [], [0.0]
+    out = types.SimpleNamespace(
+        publish_frame=lambda: None,
+        publish_status=lambda: None,
+        log=lambda level, text: logs.append((level, text)),
+        start_physics=lambda period: None,
+        stop_physics=lambda: None,
+        finish=lambda code: None,
+    )
+    life = SimLifecycle(
+        sim, LifecycleConfig(steps=5, mode='realtime', startup_timeout=10.0), out, {}, lambda: now[0]
+    )
+    for r in range(
+        3
+    ):  # cf9 (robot 2) never publishes: every agent says so; robot 0's agent also lacks cf5 for now
+        life.on_agent_status(r, {'ready': False, 'missing_names': ['cf9'] + (['cf5'] if r == 0 else [])})
+    life.on_agent_status(0, {'ready': False, 'missing_names': ['cf9']})  # the newest status counts
+    now[0] = 11.0
+    life.on_watchdog(now[0])
+    assert logs[-1][0] == 'error' and logs[-1][1].endswith('never heard by the agents: cf9')
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    write_json_report(str(run_dir / 'simulator.json'), life.report())
+    assert name_never_heard(types.SimpleNamespace(run_dir=run_dir)) == ['cf9']
+    assert 'never heard by the agents: cf9' in capsys.readouterr().out
+    (run_dir / 'simulator.json').unlink()
+    assert name_never_heard(types.SimpleNamespace(run_dir=run_dir)) == []
+
+
+def test_the_launcher_gives_the_fleet_to_the_monitor_and_the_lifecycle_manager(tmp_path):
+    from knode_swarm_ros.nodes.swarm.cli import build_parser
+    from knode_swarm_ros.nodes.swarm.commands import build_commands
+    from knode_swarm_ros.nodes.swarm.plan import plan_run
+
+    fleet = tmp_path / 'fleet.yaml'
+    fleet.write_text('robots: {a: {id: 4}, b: {id: 9}}\n')
+    fleet = str(fleet)
+    args = [
+        '--record',
+        str(tmp_path / 'r.npz'),
+        '--domain-id',
+        '7',
+        '--fleet',
+        fleet,
+        '--managed',
+        '--monitor',
+        '0',
+    ]
+    commands, files = build_commands(plan_run(build_parser().parse_args(args)))
+    params = {path.name: p for path, p in files.items()}
+    assert params['monitor.yaml']['fleet'] == fleet
+    assert f'fleet:={fleet}' in ' '.join(commands['lifecycle_manager'])
+    assert {'agent_4', 'agent_9'} <= set(commands)

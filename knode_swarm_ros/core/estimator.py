@@ -33,10 +33,29 @@ from typing import Deque, Optional, Tuple
 
 import numpy as np
 
-__all__ = ['VelocityEstimator', 'DEFAULT_WINDOW', 'noise_gain', 'lag_s', 'fit_weights']
+__all__ = [
+    'VelocityEstimator',
+    'DEFAULT_WINDOW',
+    'DEFAULT_LAG_S',
+    'window_for_rate',
+    'noise_gain',
+    'lag_s',
+    'fit_weights',
+]
 
-#: Samples per fit: at 100 Hz mocap, 45 ms of lag and 0.11 sigma / h of velocity noise.
+#: The default lag (seconds): the 100 Hz design point's 10 samples. At 2 mm of noise per axis it
+#: gives 22 mm/s of velocity noise at 100 Hz; a slower stream gets the same lag from fewer samples
+#: (more noise: 28 mm/s at 20 Hz, 3 samples), a faster one less noise.
+DEFAULT_LAG_S = 0.045
+
+#: Samples per fit when the stream's rate is not stated: the 100 Hz window of DEFAULT_LAG_S.
 DEFAULT_WINDOW = 10
+
+
+def window_for_rate(rate_hz: float, lag: float = DEFAULT_LAG_S) -> int:
+    """The window of about ``lag`` seconds of lag at ``rate_hz`` samples per second:
+    ``max(2, 1 + round(2 lag rate))`` (the inverse of :func:`lag_s`; 10 at 100 Hz, 3 at 20 Hz)."""
+    return max(2, 1 + int(round(2.0 * float(lag) * float(rate_hz))))
 
 
 def noise_gain(window: int, period_s: float) -> float:

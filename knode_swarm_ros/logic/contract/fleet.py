@@ -8,6 +8,7 @@ A fleet file (YAML; docs/ros.md, "Your own fleet")::
     state:
       topic: /vrpn_mocap/{name}/pose     # template: {name}, {id}; relative: in the robot's namespace
       type: pose                         # odometry | pose (geometry_msgs/PoseStamped)
+      rate: 100                          # pose: the stream's rate, Hz (optional; sets the default window)
       velocity_window: 10                # pose: samples of the velocity fit (core/estimator.py)
     command:
       topic: /{name}/cmd_vel
@@ -35,7 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from knode_swarm_ros.core.errors import ConfigError
-from knode_swarm_ros.core.estimator import DEFAULT_WINDOW
+from knode_swarm_ros.core.estimator import DEFAULT_WINDOW, window_for_rate
 from knode_swarm_ros.core.yaml_file import read_yaml
 
 __all__ = [
@@ -60,7 +61,7 @@ TEMPLATE_FIELDS = ('name', 'id')
 
 _TOP_KEYS = ('robots', 'state', 'command')
 _ROBOT_KEYS = ('id', 'enabled', 'initial_position')
-_STATE_KEYS = ('topic', 'type', 'velocity_window')
+_STATE_KEYS = ('topic', 'type', 'rate', 'velocity_window')
 _COMMAND_KEYS = ('topic', 'type', 'interface', 'speed_limit')
 # What the last segment of a topic says its type is: a mismatch is almost always a copy-paste slip.
 _TOPIC_HINTS = {
@@ -101,7 +102,8 @@ class StateSpec:
 
     topic: str = 'odom'
     type: str = 'odometry'
-    velocity_window: int = DEFAULT_WINDOW
+    velocity_window: int = DEFAULT_WINDOW  # default: window_for_rate(rate), DEFAULT_WINDOW without a rate
+    rate: Optional[float] = None  # the stream's nominal rate in Hz, when the file states it
 
 
 @dataclass(frozen=True)
@@ -335,10 +337,15 @@ def _state(entry: Any, path: str) -> StateSpec:
     kind = _choice(entry, 'type', STATE_TYPES, 'odometry', path, 'state')
     topic = _template(entry.get('topic', 'odom' if kind == 'odometry' else 'pose'), path, 'state')
     _type_matches_topic(topic, kind, path, 'state')
-    window = entry.get('velocity_window', DEFAULT_WINDOW)
+    rate = entry.get('rate')
+    if rate is not None:
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate < 1e6:
+            raise ConfigError(f'{path}: state: rate must be a number > 0 (Hz), got {rate!r}')
+        rate = float(rate)
+    window = entry.get('velocity_window', DEFAULT_WINDOW if rate is None else window_for_rate(rate))
     if isinstance(window, bool) or not isinstance(window, int) or window < 2:
         raise ConfigError(f'{path}: state: velocity_window must be an integer >= 2, got {window!r}')
-    return StateSpec(topic, kind, window)
+    return StateSpec(topic, kind, window, rate)
 
 
 def _command(entry: Any, path: str) -> CommandSpec:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, Dict, Optional, Protocol
+from typing import Callable, Dict, List, Optional, Protocol
 
 from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, dt_mismatch
 from knode_swarm_ros.logic.reporting import Throttle
@@ -37,7 +37,7 @@ class LifecycleConfig:
 
     steps: int  # 0: until stopped
     mode: str  # 'lockstep' or 'realtime'
-    publish_every: int = 1  # realtime: steps between published frames
+    publish_every: int = 1  # realtime: sub-steps (steps without sub-steps) between published frames
     real_time_factor: float = 1.0
     lockstep_timeout: float = 5.0
     startup_timeout: float = 120.0
@@ -82,6 +82,7 @@ class SimLifecycle:
         self.phase = 'waiting'
         self.exit_code: Optional[int] = None
         self.agent_ready: Dict[int, bool] = {}
+        self.agent_missing: Dict[int, List[str]] = {}  # robot -> names its agent never heard (newest status)
         self.recorder_ready = False
         self.recorder_saved = False
         self.recorder_progress = -1
@@ -89,6 +90,7 @@ class SimLifecycle:
         self.wall0 = clock()
         self.run_wall0: Optional[float] = None
         self.run_step0 = 0
+        self.run_tick0 = 0
         self.done_wall: Optional[float] = None
         self.last_publish = -1e9
         self.overruns = 0
@@ -125,6 +127,10 @@ class SimLifecycle:
         if self.phase == 'done':
             fields['final_step'] = self.final_frame()
         return fields
+
+    def never_heard(self) -> List[str]:
+        """Names of the robots some agent has never heard, by the agents' newest statuses (sorted)."""
+        return sorted({name for names in self.agent_missing.values() for name in names})
 
     # --- events --------------------------------------------------------------------
     def on_command(self, robot: int, ns: int, u, now: float) -> str:
@@ -163,6 +169,8 @@ class SimLifecycle:
         if status is None:
             return
         self.agent_ready[robot] = bool(status.get('ready'))
+        names = status.get('missing_names')
+        self.agent_missing[robot] = [str(n) for n in names] if isinstance(names, list) else []
         problem = dt_mismatch(status.get('dt'), self.sim.dt)
         if problem and self.exit_code is None:
             # Each step would be integrated over a different time than the policy assumes: refuse.
@@ -232,17 +240,18 @@ class SimLifecycle:
         if self.phase != 'running':
             return
         c = self.config
-        rtf, dt = c.real_time_factor, self.sim.dt
-        due = int((now - self.run_wall0) * rtf / dt) - (self.sim.step - self.run_step0)
-        if due > _MAX_CATCH_UP:  # too far behind (the machine is overloaded): drop time, count it
-            self.overruns += due - _MAX_CATCH_UP
-            self.run_wall0 += (due - _MAX_CATCH_UP) * dt / rtf
-            due = _MAX_CATCH_UP
+        rtf, h = c.real_time_factor, self.sim.h  # h: one sub-step (dt without sub-steps)
+        due = int((now - self.run_wall0) * rtf / h) - (self.sim.tick - self.run_tick0)
+        catch_up = _MAX_CATCH_UP * self.sim.substeps
+        if due > catch_up:  # too far behind (the machine is overloaded): drop time, count it
+            self.overruns += due - catch_up
+            self.run_wall0 += (due - catch_up) * h / rtf
+            due = catch_up
         for _ in range(max(due, 0)):
             if c.steps and self.sim.step >= c.steps:
                 break
             self.sim.advance()
-            if self.sim.step % c.publish_every == 0:
+            if self.sim.tick % c.publish_every == 0:
                 self.publish()
         if c.steps and self.sim.step >= c.steps:
             self._done()
@@ -266,10 +275,12 @@ class SimLifecycle:
             return
         if now - self.wall0 > c.startup_timeout:
             who = ([f'agents {_ids(agents)}'] if agents else []) + (['the recorder'] if recorder else [])
+            silent = self.never_heard()
             self.out.log(
                 'error',
                 f'not ready after {c.startup_timeout:g} s: {" and ".join(who)} '
-                '(an agent is ready once it has heard every robot)',
+                '(an agent is ready once it has heard every robot)'
+                + (f'; never heard by the agents: {", ".join(silent)}' if silent else ''),
             )
             self._finish(EXIT_FAILURE)
             return
@@ -284,12 +295,13 @@ class SimLifecycle:
         self.phase = 'running'
         self.run_wall0 = now
         self.run_step0 = self.sim.step
+        self.run_tick0 = self.sim.tick
         self.last_progress = (now, self.sim.step)
         self.out.publish_status()
         self.sim.note_published(now)
         self.last_publish = now
         if self.config.mode == 'realtime':
-            self.out.start_physics(self.sim.dt / self.config.real_time_factor)
+            self.out.start_physics(self.sim.h / self.config.real_time_factor)
         else:
             self._lockstep_advance()
 
@@ -332,6 +344,7 @@ class SimLifecycle:
             exit_code=EXIT_OK if self.exit_code is None else self.exit_code,
             frames_published=self.frames,
             overruns=self.overruns,
+            never_heard=self.never_heard(),
             **self.sim.report(),
         )
         if self.run_wall0 is not None:

@@ -12,6 +12,10 @@ boids stepper of :mod:`knode_swarm_ros.core.groundtruth`, which ignores commands
   for, until a command for the current step comes from it again (it rejoins).
 * realtime: each step uses each robot's newest command (by stamp); a robot whose newest command
   is older than ``command_timeout`` seconds of simulated time (or that never sent one) is stopped.
+  With ``substeps`` k > 1 (a motion capture faster than the policy) a step of ``dt`` is taken
+  as k sub-steps of ``dt / k``, each integrating exactly the command held at its start, so a
+  command that arrives mid-step acts from the next sub-step on, as on a real robot; the states
+  of every sub-step are published. Lockstep takes whole steps only (k = 1).
 
 Stopping follows docs/DESIGN.md and is the robot model's: a velocity-commanded robot gets zero
 velocity, an acceleration-commanded one brakes to rest at the saturated deceleration
@@ -234,6 +238,7 @@ class SwarmSim:
         robot_model: a name of :data:`.robot_models.ROBOT_MODELS`; the robots are built from ``z0``
             (their states are the model's ``states()``, commands ``[m]`` the model's).
         robot_params: the model's parameters (e.g. the unicycle's limits; others are ignored).
+        substeps: realtime: sub-steps per step (states published every ``dt / substeps``).
     """
 
     robots: RobotModel
@@ -249,6 +254,7 @@ class SwarmSim:
         stop_limit: Optional[float] = None,
         robot_model: str = DEFAULT_ROBOT_MODEL,
         robot_params: Optional[Dict[str, float]] = None,
+        substeps: int = 1,
     ):
         self.spec: Scenario = get_scenario(scenario)
         z0 = np.array(z0, dtype=np.float64)
@@ -260,10 +266,17 @@ class SwarmSim:
             raise ConfigError(f"parameter 'mode' = {mode!r} is not one of {', '.join(MODES)}")
         if not dt > 0:
             raise ConfigError(f"parameter 'dt' must be > 0, got {dt}")
+        if int(substeps) != substeps or substeps < 1:
+            raise ConfigError(f'substeps must be an integer >= 1, got {substeps}')
+        if substeps != 1 and (mode == 'lockstep' or ground_truth is not None):
+            raise ConfigError('sub-steps (a state rate above 1 / dt) are for realtime runs of agents only')
         self.n = z0.shape[0]
         self.dt = float(dt)
         self.mode = mode
-        self.command_timeout_steps = float(command_timeout) / self.dt
+        self.substeps = int(substeps)
+        self.h = self.dt / self.substeps  # seconds per sub-step (dt itself when substeps is 1)
+        self.sub = 0  # sub-steps taken within the current step
+        self.command_timeout_ticks = float(command_timeout) / self.h
         self.ground_truth = ground_truth
         if stop_limit is not None and not (np.isfinite(stop_limit) and stop_limit >= 0):
             raise ConfigError(f"parameter 'command_limit' must be >= 0, got {stop_limit}")
@@ -273,28 +286,33 @@ class SwarmSim:
         self.states = self.robots.states()
         m = self.robots.command_dim
         self.commands = np.zeros((self.n, m))  # newest command of each robot
-        self.command_step = np.full(self.n, -1, dtype=np.int64)  # its stamp's step (-1: none yet)
+        self.command_tick = np.full(self.n, -1, dtype=np.int64)  # its stamp's sub-step (-1: none yet)
         self.applied = np.zeros((self.n, m))  # what the last step applied
         self.answered = set()  # lockstep: robots that answered self.step
         self.lost = set()  # lockstep: not waited for
         self._settled = 0  # lockstep: robots answered or lost (|answered | lost|)
         self.counters = _Counters()
         self.latency: List[float] = []  # wall seconds, state published -> first command
-        self._published: Dict[int, float] = {}  # step -> wall time it was published
+        self._published: Dict[int, float] = {}  # tick -> wall time it was published
         self._latency_seen = set()  # (robot, step)
         self._commanded: Dict[int, set] = {}  # step -> robots whose command for it arrived (recent steps)
         self.step_wall = 0.0  # wall time self.step was first published
 
     # --- time ----------------------------------------------------------------------
     @property
+    def tick(self) -> int:
+        """Sub-steps since the start (the step itself when ``substeps`` is 1)."""
+        return self.step * self.substeps + self.sub
+
+    @property
     def stamp_ns(self) -> int:
         """Stamp of the current state."""
-        return stamp_ns(self.step, self.dt)
+        return stamp_ns(self.step, self.dt) + stamp_ns(self.sub, self.h)
 
     def note_published(self, wall: float) -> None:
         """The current state has been published at ``wall`` (first time only counts)."""
-        if self.step not in self._published:
-            self._published[self.step] = wall
+        if self.tick not in self._published:
+            self._published[self.tick] = wall
             self.step_wall = wall
             if len(self._published) > 512:
                 for s in sorted(self._published)[:256]:
@@ -314,8 +332,8 @@ class SwarmSim:
         if not np.all(np.isfinite(u)):
             c.non_finite += 1
             return 'non_finite'
-        s = step_of(ns, self.dt)
-        if s > self.step:
+        s = step_of(ns, self.h)  # a sub-step (the step when substeps is 1)
+        if s > self.tick:
             c.future += 1
             return 'future'
         seen = self._commanded.setdefault(s, set())
@@ -334,7 +352,7 @@ class SwarmSim:
                 c.stale += 1
                 return 'stale'
             self.commands[robot] = u
-            self.command_step[robot] = s
+            self.command_tick[robot] = s
             self.answered.add(robot)
             if robot in self.lost:  # (settled already, as lost)
                 self.lost.discard(robot)
@@ -343,11 +361,11 @@ class SwarmSim:
             self._settled += 1
             c.accepted += 1
             return 'accepted'
-        if s < self.command_step[robot]:  # an older command overtaken by a newer one
+        if s < self.command_tick[robot]:  # an older command overtaken by a newer one
             c.stale += 1
             return 'stale'
         self.commands[robot] = u
-        self.command_step[robot] = s
+        self.command_tick[robot] = s
         c.accepted += 1
         return 'accepted'
 
@@ -382,14 +400,15 @@ class SwarmSim:
 
     # --- stepping ------------------------------------------------------------------
     def advance(self) -> np.ndarray:
-        """One step of ``dt``; returns the new states ``[n, d]``."""
+        """One sub-step of ``dt / substeps`` (a step of ``dt`` when ``substeps`` is 1); returns the
+        new states ``[n, d]``."""
         if self.ground_truth is not None:
             self.states = np.array(self.ground_truth.step()[0], dtype=np.float64)
             self.robots.place(self.states)
         else:
             command = self.commands.copy()
             if self.mode == 'realtime':
-                old = (self.command_step < 0) | (self.step - self.command_step > self.command_timeout_steps)
+                old = (self.command_tick < 0) | (self.tick - self.command_tick > self.command_timeout_ticks)
             else:
                 old = np.zeros(self.n, dtype=bool)
                 old[sorted(self.lost)] = True
@@ -397,8 +416,12 @@ class SwarmSim:
                 self.counters.zeroed += int(np.count_nonzero(old))
                 command[old] = self.stop_commands()[old]
             self.applied = command
-            self.robots.step(command, self.dt)
+            self.robots.step(command, self.h)
             self.states = self.robots.states()
+        self.sub += 1
+        if self.sub < self.substeps:
+            return self.states
+        self.sub = 0
         self.step += 1
         self.answered = set()
         self._settled = len(self.lost)
@@ -406,11 +429,12 @@ class SwarmSim:
 
     def stop_commands(self) -> np.ndarray:
         """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
-        return self.robots.stop_commands(self.stop_limit, self.dt)
+        return self.robots.stop_commands(self.stop_limit, self.h)
 
     # --- reporting -----------------------------------------------------------------
     def report(self) -> Dict[str, Any]:
-        """JSON-able figures: steps, counters, latency percentiles (milliseconds)."""
+        """JSON-able figures: steps, counters, latency percentiles (milliseconds), and the true
+        states ``[n, d]`` now (``states``: what a noisy motion capture hides)."""
         lat = percentiles([x * 1e3 for x in self.latency])
         return {
             'step': self.step,
@@ -418,4 +442,5 @@ class SwarmSim:
             'lost': sorted(self.lost),
             'counters': dict(self.counters.__dict__),
             'latency_ms': {k: v for k, v in lat.items()},
+            'states': self.states.tolist(),
         }

@@ -123,6 +123,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             control_rate if mode == 'realtime' else 1.0 / policy.dt,
             qos.COMMAND,
             self.twist_frame,
+            fleet=fleet,
         )
         self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
 

@@ -4,7 +4,9 @@ The policy's planar command (flock2d acceleration) becomes ``cmd_vel`` = (linear
 through :class:`knode_swarm_ros.core.unicycle.UnicycleMapper` (feedback linearisation about a
 point ``unicycle_lookahead`` ahead of the axle; see that module for the method and why), on
 ``robot_<id>/cmd_vel`` as geometry_msgs/TwistStamped (``unicycle_stamped: true``, default) or
-Twist (``false``): Jazzy drivers use both. The heading comes from the own Odometry's
+Twist (``false``): Jazzy drivers use both. With a fleet the topic and the frame are the fleet's
+(``command.topic``, ``<name>/base_link``); a fleet whose ``command.interface`` is ``unicycle``
+turns this output on and its ``command.type`` chooses TwistStamped or Twist. The heading comes from the own Odometry's
 orientation; the velocity of the point ahead from its twist (linear.x in the body frame, as
 REP 105 and every differential-drive driver publish it, and angular.z). A stop (stale own
 state) brakes to rest within the acceleration limits.
@@ -49,6 +51,7 @@ class AgentUnicycle:
         control_rate: float,
         qos_profile,
         twist_frame: str = 'body',
+        fleet=None,
     ):
         from knode_swarm_ros.nodes.common.params import declare  # rclpy: imported with the node only
 
@@ -87,6 +90,13 @@ class AgentUnicycle:
             )
         }
         natural = 'accel' if spec.command == 'acceleration' else 'twist'
+        by_fleet = fleet is not None and fleet.command.interface == 'unicycle'
+        if by_fleet and interface not in ('', 'unicycle'):
+            raise ConfigError(
+                f"parameter 'command_interface' = {interface!r}, but the fleet {fleet.path} says "
+                'interface unicycle: drop the parameter or change the fleet'
+            )
+        interface = 'unicycle' if by_fleet else interface
         if interface not in ('', natural, 'unicycle'):
             raise ConfigError(
                 f"parameter 'command_interface' = {interface!r} does not fit a {spec.command} "
@@ -119,9 +129,15 @@ class AgentUnicycle:
         except ValueError as exc:
             raise ConfigError(f'parameter {exc}') from None
         self.stamped = bool(stamped)
+        topic = f'robot_{int(robot_id)}/cmd_vel'
         self.frame = robot_frame(robot_id)
+        if fleet is not None:  # the fleet's names and topic; its message type when it states one
+            topic = fleet.command_topic(robot_id, 'velocity')
+            self.frame = fleet.frame(robot_id)
+            if by_fleet and fleet.command.type is not None:
+                self.stamped = fleet.command.type == 'twist_stamped'
         self.msg_type = TwistStamped if self.stamped else Twist
-        self.publisher = node.create_publisher(self.msg_type, f'robot_{int(robot_id)}/cmd_vel', qos_profile)
+        self.publisher = node.create_publisher(self.msg_type, topic, qos_profile)
 
     def observe(self, own: bool, pose, linear, angular, z: np.ndarray) -> np.ndarray:
         """The state ``[4]`` the policy sees of a robot, from its Odometry fields (pose [7], twist

@@ -1,9 +1,12 @@
 """The ``monitor`` node: a live view of a simulated or real swarm.
 
-Reads what the agents read, ``robot_<i>/odom`` of robots 0 .. n-1 (raw, as the recorder does:
-only each robot's newest message is kept and decoded at the next tick), and the agents' health
-on ``/diagnostics``. Every tick (``rate`` per wall second) it builds a
-:class:`~knode_swarm_ros.logic.monitor.Snapshot` and publishes it as ``monitor/metrics``
+Reads what the agents read: ``robot_<i>/odom`` of robots 0 .. n-1, or the state topics and
+types of a fleet's robots (parameter ``fleet``), raw, as the recorder does: only each robot's
+newest Odometry is kept and decoded at the next tick; poses are all decoded at the next tick, so
+that the velocity estimate (the fleet's window, as the agents') sees the whole stream. And the
+agents' health on ``/diagnostics`` (``hardware_id`` ``robot_<id>``, the fleet's ids). Every
+tick (``rate`` per wall second) it builds a :class:`~knode_swarm_ros.logic.monitor.Snapshot` and
+publishes it as ``monitor/metrics``
 (std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), as RViz markers on
 ``monitor/markers`` (``marker_rate`` per second, only while someone listens: robots coloured by
 health, headings, the Y_i links, trails) and to the web page (``http://host:port/``, unless
@@ -17,14 +20,15 @@ import time
 from functools import partial
 
 from diagnostic_msgs.msg import DiagnosticArray
-from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
 from knode_swarm_ros.core.scenarios import get_scenario
-from knode_swarm_ros.logic.common import ConfigError, odom_topic, parse_robot_frame, status_json
+from knode_swarm_ros.logic.common import ConfigError, parse_robot_frame, status_json
+from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet
+from knode_swarm_ros.logic.contract.pose import PoseStates
 from knode_swarm_ros.logic.monitor import (
     METRICS_TOPIC,
     MONITOR_MARKERS_TOPIC,
@@ -36,7 +40,13 @@ from knode_swarm_ros.logic.monitor import (
     view_scale,
 )
 from knode_swarm_ros.nodes.common import qos
-from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES, CdrError, odom_from_cdr
+from knode_swarm_ros.nodes.common.conversions import (
+    STATE_MESSAGES,
+    TWIST_FRAMES,
+    CdrError,
+    odom_from_cdr,
+    pose_from_cdr,
+)
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
@@ -91,20 +101,30 @@ class MonitorNode(Node):
             'frame of the Odometry twist: body (REP 105) or world',
             choices=TWIST_FRAMES,
         )
+        fleet_file = declare(
+            self, 'fleet', '', "fleet file: its robots' state topics and types (overrides 'robots')"
+        )
         check_overrides(self, sys.argv)
+        self.fleet = load_fleet(fleet_file) if fleet_file else default_fleet(range(robots))
+        robots = len(self.fleet.robots)
+        self.poses = (
+            PoseStates(self.scenario, self.fleet.state.velocity_window)
+            if self.fleet.state.type == 'pose'
+            else None
+        )
         if lost_after < stale_after:
             raise ConfigError(f"parameter 'lost_after' = {lost_after} is below 'stale_after' = {stale_after}")
         self.spec = get_scenario(self.scenario)
         self.watch = SwarmWatch(
             self.scenario,
-            range(robots),
+            self.fleet.ids,
             d_cr or default_d_cr,
             k or default_k,
             stale_after=stale_after,
             lost_after=lost_after,
             trail=trail,
         )
-        self.pending = {}  # robot -> (newest serialized Odometry, wall time it arrived)
+        self.pending = {}  # robot id -> [(serialized state, wall time it arrived)] (Odometry: the newest only)
         self.hello = None
         self.web = None
         if self.web_on:
@@ -130,9 +150,12 @@ class MonitorNode(Node):
         self.marker_throttle = Throttle(marker_rate)
         self.metrics_pub = self.create_publisher(String, METRICS_TOPIC, qos.STATUS)
         self.markers_pub = self.create_publisher(MarkerArray, MONITOR_MARKERS_TOPIC, qos.MARKERS)
+        state_type = STATE_MESSAGES[self.fleet.state.type]
         self.subs = [
-            self.create_subscription(Odometry, odom_topic(r), partial(self._on_odom, r), qos.ODOM, raw=True)
-            for r in range(robots)
+            self.create_subscription(
+                state_type, self.fleet.state_topic(rid), partial(self._on_odom, rid), qos.ODOM, raw=True
+            )
+            for rid in self.fleet.ids
         ]
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, qos.DIAGNOSTICS)
         self.create_timer(1.0 / rate, self._on_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -140,18 +163,29 @@ class MonitorNode(Node):
         self.get_logger().info(f'watching {robots} robots ({self.spec.name}){where}')
 
     def _on_odom(self, robot: int, data: bytes) -> None:
-        # Only the newest message is kept; it is decoded at the next tick: the monitor's work
-        # follows its tick rate, not the swarm's publishing rate.
-        self.pending[robot] = (data, time.monotonic())
+        # Decoded at the next tick: the monitor's work follows its tick rate, not the swarm's
+        # publishing rate (an Odometry: only the newest is kept; poses: every one, for the estimate).
+        if self.poses is None:
+            self.pending[robot] = [(data, time.monotonic())]
+        else:
+            queue = self.pending.setdefault(robot, [])
+            if len(queue) < 1000:  # a stalled tick must not grow without bound
+                queue.append((data, time.monotonic()))
 
     def _decode_pending(self) -> None:
         pending, self.pending = self.pending, {}
-        for robot, (data, wall) in pending.items():
-            try:
-                stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
-            except CdrError:
-                continue
-            if not frame or parse_robot_frame(frame) == robot:
+        for robot, queue in pending.items():
+            for data, wall in queue:
+                try:
+                    if self.poses is not None:
+                        stamp, _, pose = pose_from_cdr(data)
+                        z = self.poses.state(robot, stamp, pose[:3], pose[3:])
+                    else:
+                        stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
+                        if not self.fleet.owns_frame(frame, robot):
+                            continue
+                except CdrError:
+                    continue
                 self.watch.receive(robot, stamp, z, wall)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

@@ -68,10 +68,27 @@ from knode_swarm_ros.nodes.common.params import check_overrides, declare, declar
 
 from .robot_model import declare_robot_model
 
-__all__ = ['SimulatorNode', 'main']
+__all__ = ['SimulatorNode', 'main', 'substeps_of']
 
 _WATCHDOG_PERIOD = 0.01  # wall seconds
 _COMMAND_MESSAGES = {'acceleration': AccelStamped, 'velocity': TwistStamped}  # CommandWire.kind -> type
+
+
+def substeps_of(state_rate: float, dt: float, mode: str) -> int:
+    """Sub-steps per step for parameter ``state_rate`` (0: 1).
+
+    Raises:
+        ConfigError: a rate that is not a whole multiple of 1 / dt, or any outside realtime.
+    """
+    if not state_rate:
+        return 1
+    k = int(round(state_rate * dt))
+    if mode != 'realtime' or k < 1 or abs(k - state_rate * dt) > 1e-6:
+        raise ConfigError(
+            f"parameter 'state_rate' = {state_rate:g}: realtime only, and a whole multiple of 1 / dt = "
+            f'{1.0 / dt:g} Hz (the simulator takes whole sub-steps of each step)'
+        )
+    return k
 
 
 class SimulatorNode(Node):
@@ -145,6 +162,15 @@ class SimulatorNode(Node):
             20.0,
             'realtime: odom and /clock rate in simulated Hz (lockstep publishes every step)',
             float_range=(1e-3, 10_000.0),
+        )
+        state_rate = declare(
+            self,
+            'state_rate',
+            0.0,
+            'realtime: states per simulated second above 1 / dt (a motion capture faster than the policy): '
+            'each step is taken as state_rate * dt sub-steps, a whole number, each published '
+            '(0: publish_rate)',
+            float_range=(0.0, 10_000.0),
         )
         command_timeout = declare(
             self,
@@ -284,6 +310,7 @@ class SimulatorNode(Node):
             stop_limit,
             robot_model=robot_model,
             robot_params=robot_params,
+            substeps=substeps_of(state_rate, dt, mode),
         )
         self.spec = spec
         self.mode = mode
@@ -297,7 +324,11 @@ class SimulatorNode(Node):
         self.poses = self.fleet.state.type == 'pose'
         self._noise = np.random.default_rng([int(seed), 1]) if self.poses and self.pose_noise > 0 else None
         self.d_cr = d_cr
-        self.publish_every = 1 if mode == 'lockstep' else max(1, int(round(1.0 / (publish_rate * dt))))
+        self.publish_every = (
+            1
+            if mode == 'lockstep' or self.sim.substeps > 1
+            else max(1, int(round(1.0 / (publish_rate * dt))))
+        )
         self.meta = {
             'scenario': scenario,
             'robots': self.n,
@@ -305,6 +336,7 @@ class SimulatorNode(Node):
             'dt': dt,
             'steps': self.steps,
             'publish_every': self.publish_every,
+            'substeps': self.sim.substeps,
             'ground_truth': ground_truth,
             'variant': variant or ('paper' if has_ground_truth(spec) else ''),
             'robot_model': robot_model,

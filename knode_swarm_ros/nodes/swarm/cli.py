@@ -157,8 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
         '--pose-rate',
         type=float,
         metavar='HZ',
-        help='--fleet with poses, realtime: the motion capture rate in simulated Hz (at most 1 / dt of the '
-        'policy, the rate the simulator steps at); default --rate',
+        help='--fleet with poses, realtime: the motion capture rate in simulated Hz: at most 1 / dt of the '
+        'policy, or a whole multiple of it (e.g. 100 under a 20 Hz policy: the simulator integrates each '
+        'step in that many sub-steps and publishes every one); default: the state.rate of the fleet, else --rate',
     )
     add_link_arguments(p)
     robot_model.add_arguments(p)

@@ -62,7 +62,9 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
     fleet = getattr(plan, 'fleet', '')
     if fleet:  # every node speaks the fleet's names, topics and types
         sim.update(fleet=fleet, pose_noise=float(plan.pose_noise))
-        if plan.pose_rate is not None:
+        if plan.pose_rate is not None and plan.pose_rate * plan.dt > 1.0 + 1e-9:
+            sim['state_rate'] = float(plan.pose_rate)  # a motion capture faster than the policy: sub-steps
+        elif plan.pose_rate is not None:
             sim['publish_rate'] = float(plan.pose_rate)
     rec = {
         'scenario': plan.scenario,
@@ -91,6 +93,8 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
             'port': int(plan.monitor_port),
             'host': plan.monitor_host,
         }
+        if fleet:
+            files[plan.run_dir / 'monitor.yaml']['fleet'] = fleet
         out['monitor'] = python + [
             f'{PACKAGE}.nodes.monitor',
             '--ros-args',
@@ -119,14 +123,18 @@ def build_commands(plan) -> Tuple[Dict[str, List[str]], Dict[Path, Dict]]:
         files[plan.run_dir / 'agent.yaml'] = agent
         params = str(plan.run_dir / 'agent.yaml')
         if plan.managed:  # configures every agent, then activates them together, then exits 0
-            out['lifecycle_manager'] = python + [
-                f'{PACKAGE}.nodes.lifecycle_manager',
-                '--ros-args',
-                '-p',
-                f'robots:={plan.robots}',
-                '-p',
-                f'timeout:={float(plan.startup_timeout)}',
-            ]
+            out['lifecycle_manager'] = (
+                python
+                + [
+                    f'{PACKAGE}.nodes.lifecycle_manager',
+                    '--ros-args',
+                    '-p',
+                    f'robots:={plan.robots}',
+                    '-p',
+                    f'timeout:={float(plan.startup_timeout)}',
+                ]
+                + (['-p', f'fleet:={param_scalar(fleet)}'] if fleet else [])
+            )
         out.update(
             hosting.agent_commands(
                 plan.robots,

@@ -257,8 +257,10 @@ def _rate(args: argparse.Namespace, dt: float) -> float:
 
 
 def _fleet(args: argparse.Namespace, scenario: str, dt: float):
-    """``(path, ids)`` of ``--fleet`` (``('', [])`` without), checked against the run's scenario
-    and the pose flags."""
+    """``(path, ids, pose rate)`` of ``--fleet`` (``('', [], None)`` without), checked against the
+    run's scenario and the pose flags. The pose rate is ``--pose-rate``, else the fleet's
+    ``state.rate`` in realtime (the simulated motion capture runs at the rate the fleet's
+    estimator window was chosen for), else None (the control rate)."""
     from knode_swarm_ros.core.scenarios import get_scenario
     from knode_swarm_ros.logic.contract.fleet import load_fleet
 
@@ -266,7 +268,7 @@ def _fleet(args: argparse.Namespace, scenario: str, dt: float):
     if not getattr(args, 'fleet', None):
         if noise or rate is not None:
             raise ConfigError('--pose-noise and --pose-rate need --fleet (a fleet whose state type is pose)')
-        return '', []
+        return '', [], None
     path = os.path.abspath(args.fleet)
     fleet = load_fleet(path)
     spec = get_scenario(scenario)
@@ -277,19 +279,34 @@ def _fleet(args: argparse.Namespace, scenario: str, dt: float):
         )
     if not (noise >= 0 and math.isfinite(noise)):
         raise ConfigError(f'--pose-noise must be >= 0 metres, got {noise}')
-    if rate is not None and not (rate > 0 and rate * dt <= 1.0 + 1e-9 and args.mode == 'realtime'):
+    stated = fleet.state.rate if fleet.state.type == 'pose' else None
+    if rate is not None and stated is not None and not math.isclose(rate, stated, rel_tol=1e-9):
         raise ConfigError(
-            f'--pose-rate {rate:g}: realtime only, and at most 1 / dt = {1.0 / dt:g} Hz (the simulator steps '
-            'at the policy dt)'
+            f'--pose-rate {rate:g}: the fleet {args.fleet} states rate {stated:g} Hz (its estimator window '
+            'is chosen for it); drop --pose-rate or change the fleet'
+        )
+    if rate is None and stated is not None and args.mode == 'realtime':
+        if not _publishable(stated, dt):
+            raise ConfigError(
+                f'the fleet {args.fleet} states rate {stated:g} Hz: the simulator publishes at most '
+                f'1 / dt = {1.0 / dt:g} Hz or a whole multiple of it; give --pose-rate'
+            )
+        rate = stated
+    if rate is not None and not (rate > 0 and args.mode == 'realtime' and _publishable(rate, dt)):
+        raise ConfigError(
+            f'--pose-rate {rate:g}: realtime only, and at most 1 / dt = {1.0 / dt:g} Hz or a whole multiple '
+            'of it (the simulator then takes that many sub-steps of each policy step)'
         )
     if args.robots is not None and args.robots != len(fleet.robots):
         raise ConfigError(f'--robots {args.robots} but the fleet {args.fleet} has {len(fleet.robots)} robots')
-    for flag, on in (('--managed', args.managed), ('--monitor', getattr(args, 'monitor', None) is not None)):
-        if on:
-            raise ConfigError(
-                f'{flag} does not take a fleet yet (it reads robot_<id> topics); drop --fleet or {flag}'
-            )
-    return path, fleet.ids
+    return path, fleet.ids, rate
+
+
+def _publishable(rate: float, dt: float) -> bool:
+    """Whether the simulator can publish states at ``rate`` Hz with steps of ``dt``: every k-th
+    step (rate <= 1 / dt) or k sub-steps per step (a whole multiple of 1 / dt)."""
+    k = rate * dt
+    return k <= 1.0 + 1e-9 or abs(k - round(k)) <= 1e-6
 
 
 def plan_run(args: argparse.Namespace) -> Plan:
@@ -306,7 +323,7 @@ def plan_run(args: argparse.Namespace) -> Plan:
         raise ConfigError(f'--record {args.record}: the trajectory file must end with .npz')
     _check_output_folder('--record', args.record, record.parent)
     scenario, dt, d_cr, policy_path, meta = _policy(args)
-    fleet_path, fleet_ids = _fleet(args, scenario, dt)
+    fleet_path, fleet_ids, pose_rate = _fleet(args, scenario, dt)
     if fleet_ids and args.robots is None and not args.init:
         args = argparse.Namespace(**{**vars(args), 'robots': len(fleet_ids)})
     robots, init = _robots_and_init(args, scenario)
@@ -408,5 +425,5 @@ def plan_run(args: argparse.Namespace) -> Plan:
         fleet=fleet_path,
         fleet_ids=fleet_ids,
         pose_noise=float(getattr(args, 'pose_noise', 0.0) or 0.0),
-        pose_rate=getattr(args, 'pose_rate', None),
+        pose_rate=pose_rate,
     )

@@ -14,13 +14,28 @@ from typing import Dict, Optional
 
 from .console import say as _say
 
-__all__ = ['summarise', 'write_figure', 'CAPTION']
+__all__ = ['summarise', 'write_figure', 'CAPTION', 'name_never_heard']
 
 #: What good looks like, under every figure of a run.
 CAPTION = (
     'Good: avd falls low (the robots move alike; lower is better) and amd settles near the '
     "ground truth's (the same spacing)."
 )
+
+
+def name_never_heard(plan) -> list:
+    """Say which robots the agents never heard (the simulator's report, from the agents'
+    ``missing_names``); returns the names (none: [], and nothing said)."""
+    try:
+        names = json.loads((plan.run_dir / 'simulator.json').read_text()).get('never_heard') or []
+    except (OSError, ValueError, AttributeError):
+        return []
+    if names:
+        _say(
+            f'robot(s) never heard by the agents: {", ".join(map(str, names))} (check that they publish on '
+            "the fleet's state topic)"
+        )
+    return list(names)
 
 
 def summarise(plan) -> Optional[Dict]:

@@ -19,7 +19,7 @@ from .commands import child_environment, node_commands
 from .console import say as _say
 from .plan import Plan, scenario_name
 from .processes import Children, Interrupted, start_child
-from .report import summarise
+from .report import name_never_heard, summarise
 from .shm import shm_cleanup, shm_snapshot
 
 __all__ = ['run', 'MONITOR']
@@ -110,6 +110,7 @@ def run(plan: Plan) -> int:
         if removed:
             _say(f'removed {len(removed)} FastDDS shared-memory file(s) left by killed processes')
     _say(f'every process has stopped ({time.monotonic() - t0:.1f} s in all)')
+    name_never_heard(plan)
     if code in (EXIT_OK, EXIT_AGENT_LOST, EXIT_INTERRUPTED):
         if _file_identity(plan.record) != record_before:
             summarise(plan)
