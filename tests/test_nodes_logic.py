@@ -577,7 +577,7 @@ def test_shm_cleanup_removes_only_new_unlocked_fastdds_files(tmp_path, monkeypat
     monkeypatch.setattr(swarm.shm, 'SHM_DIR', tmp_path)  # the module that reads it
     (tmp_path / 'fastrtps_old').write_bytes(b'')
     (tmp_path / 'fastrtps_old_el').write_bytes(b'')
-    (tmp_path / 'fastrtps_port7000').write_bytes(b'')  # an old orphan: not ours to judge
+    (tmp_path / 'fastrtps_port7417').write_bytes(b'')  # an old orphan: not ours to judge
     before = swarm.shm_snapshot()
     for name in (
         'fastrtps_0123456789abcdef',
@@ -616,8 +616,8 @@ def test_shm_cleanup_removes_only_new_unlocked_fastdds_files(tmp_path, monkeypat
         'fastrtps_1111111111111111_el',
         'fastrtps_old',
         'fastrtps_old_el',
-        'fastrtps_port7000',
         'fastrtps_port7415',
+        'fastrtps_port7417',
         'fastrtps_port7415_el',
         'unrelated_file',
     ]
