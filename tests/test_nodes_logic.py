@@ -617,8 +617,8 @@ def test_shm_cleanup_removes_only_new_unlocked_fastdds_files(tmp_path, monkeypat
         'fastrtps_old',
         'fastrtps_old_el',
         'fastrtps_port7415',
-        'fastrtps_port7417',
         'fastrtps_port7415_el',
+        'fastrtps_port7417',
         'unrelated_file',
     ]
 
