@@ -137,6 +137,13 @@ def _file_identity(path: Path):
     return (st.st_ino, st.st_size, st.st_mtime_ns)
 
 
+def _saved_whole(rec) -> bool:
+    """Whether the recorder's log says it wrote the whole run (a signal makes it save what it has,
+    marked '(interrupted)', and exit 0 too)."""
+    line = rec.seen.get('wrote ', '')
+    return bool(line) and '(interrupted)' not in line
+
+
 def _start_in_stages(
     plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children, t0: float
 ) -> Optional[int]:
@@ -180,12 +187,14 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
     rec = children.items['recorder']
     while True:
         children.pump(0.1)
+        if any(not c.reported and c.proc.poll() is not None for c in children.items.values()):
+            children.drain()  # its last lines (done, wrote) decide how it ended
         for c in children.items.values():
             if c.reported or c.proc.poll() is None:
                 continue
             c.reported = True
             rc = c.proc.returncode
-            if c is rec and rc == 0:
+            if c is rec and rc == 0 and _saved_whole(rec):
                 continue  # saved after the simulator said done
             if c.name == MONITOR:  # an observer: the run goes on as it would without it
                 _say(f'the monitor (pid {c.pid}) {c.how_it_ended()}: the run goes on without it')
@@ -193,7 +202,7 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             if c.name == 'lifecycle_manager' and rc == 0:
                 _say('every agent configured, then activated together')
                 continue
-            if c is sim and rc == 0:
+            if c is sim and rc == 0 and 'done: ' in sim.seen:
                 _say('the simulator has finished')
                 end = time.monotonic() + 15.0
                 while rec.proc.poll() is None and time.monotonic() < end:
@@ -215,6 +224,9 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
                 if rc == EXIT_CONFIG:
                     _say('an agent refused its configuration: stopping the run')
                     return EXIT_CONFIG
+                if ' s: running' not in sim.seen:  # else the simulator would wait --startup-timeout for it
+                    _say('an agent process died before the run started: stopping the run')
+                    return EXIT_FAILURE
                 if plan.on_agent_exit == 'stop':
                     _say('--on-agent-exit stop: stopping the run')
                     return EXIT_FAILURE
@@ -224,7 +236,8 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
                     f'{"their" if len(held) > 1 else "its"} last command'
                 )
             else:
-                _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
+                early = ' before the run was over (stopped by a signal?)' if rc == 0 else ''
+                _say(f'the {c.name} (pid {c.pid}) {why}{early}{detail}: stopping the run')
                 return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE
         if plan.timeout and time.monotonic() - t0 > plan.timeout:
             _say(f'--timeout {plan.timeout:g} s reached: stopping the run')
