@@ -9,7 +9,7 @@ import os
 import signal
 import time
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Sequence
 
 from knode_swarm_ros.logic.common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
 from knode_swarm_ros.logic.reporting import write_json_report
@@ -27,8 +27,9 @@ __all__ = ['run', 'MONITOR']
 MONITOR = 'monitor'  # the process that nothing waits for
 
 
-def run(plan: Plan) -> int:
-    """Start, supervise and stop the processes of ``plan``; returns the exit status."""
+def run(plan: Plan, pending: Sequence[int] = ()) -> int:
+    """Start, supervise and stop the processes of ``plan``; returns the exit status. ``pending``:
+    signals received before (during the checks), which stop the run at once."""
     plan.record.parent.mkdir(parents=True, exist_ok=True)  # checked by plan_run (a fresh clone has no out/)
     env = child_environment(plan.domain_id)
     commands, env = hosting.place(node_commands(plan), env, plan.netns)
@@ -45,6 +46,8 @@ def run(plan: Plan) -> int:
         children.interrupted = True
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    for signum in list(pending)[:1]:  # (read after ours are installed: none is lost in between)
+        on_signal(signum, None)
     code = EXIT_OK
     lost_agents: List[str] = []
     t0 = time.monotonic()
@@ -68,6 +71,7 @@ def run(plan: Plan) -> int:
                         check_control_period(plan.rate, plan.dt).describe('--rate')
                         or f'control period = policy dt ({plan.dt:g} s)'
                     )
+            children.pump(0.0)  # a signal already pending: start nothing
             failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
             write_json_report(str(plan.run_dir / 'pids.json'), pids, indent=1)
