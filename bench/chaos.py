@@ -13,7 +13,8 @@ the launcher itself) at a random wall moment of the run (seeded), and then check
 * every process of the run has ended within its timeout;
 * the exit status is the documented one (``swarm``: 0 done, 1 failed, 3 done but an agent died,
   130 interrupted; -9 for a launcher killed by SIGKILL, which reports nothing);
-* no FastDDS shared-memory file of the run is left: no unlocked lock file, no port of its domain;
+* no FastDDS shared-memory file of the run is left: none of the segments and ports its processes
+  held (read from /proc/locks while they ran) without a live owner, no port file of its domain;
 * the recording is complete and valid (``load_trajectories``) or absent with the sentinel file
   written there before the run intact; no temporary file beside it; where an agent process died
   mid-run, the file's meta ``silent`` names its robots (lockstep; in realtime once the simulator
@@ -45,7 +46,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from knode_swarm_ros.core.trajectory import TrajectoryError, load_trajectories  # noqa: E402
-from knode_swarm_ros.nodes.swarm.shm import SHM_DIR, lock_held, shm_snapshot  # noqa: E402
+from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot  # noqa: E402
 
 SENTINEL = b'chaos sentinel: the file that was here before the run\n'
 SIGNALS = (signal.SIGKILL, signal.SIGINT, signal.SIGTERM)
@@ -145,10 +146,14 @@ def run_round(
         )
     t0 = time.monotonic()
     sim_log = log_dir / 'simulator.log'
+    held: set = set()  # the FastDDS lock files the run's processes held (their segments, ports)
     try:
         pids: Dict[str, int] = {}
         while launcher.poll() is None and time.monotonic() - t0 < END_S:
             pids = pids or _pids(log_dir)
+            if int((time.monotonic() - t0) * 20) % 10 == 0:  # every half second or so
+                for pid in pids.values():
+                    held |= shm_held_by(pid)
             running = ': running' in _read(sim_log)
             due = time.monotonic() - t0 >= moment and (running or not when_running)
             if due and (target == 'launcher' or pids):
@@ -173,6 +178,8 @@ def run_round(
         pids = pids or _pids(log_dir)
         deadline = time.monotonic() + (END_S if r.rc == -signal.SIGKILL else 5.0)
         while time.monotonic() < deadline and any(_alive(p) for p in pids.values()):
+            for pid in pids.values():
+                held |= shm_held_by(pid)
             time.sleep(0.1)  # a killed launcher's children stop on their own (PR_SET_PDEATHSIG)
         left = [f'{n} ({p})' for n, p in pids.items() if _alive(p)]
         if left:
@@ -185,7 +192,7 @@ def run_round(
                 except ProcessLookupError:
                     pass
         launcher.poll()
-    check_round(r, _read(out_path), record, log_dir, shm_before, pids.get('simulator'))
+    check_round(r, _read(out_path), record, log_dir, shm_before, held)
     return r
 
 
@@ -200,7 +207,7 @@ def expected_status(r: Round) -> tuple:
     return (1,)
 
 
-def check_round(r: Round, out: str, record: Path, log_dir: Path, shm_before: set, sim_pid) -> None:
+def check_round(r: Round, out: str, record: Path, log_dir: Path, shm_before: set, held: set) -> None:
     """Append to ``r.problems`` what the run did wrong (see the module doc)."""
     if r.rc is not None and r.rc not in expected_status(r):
         r.problems.append(f'exit status {r.rc}, expected {expected_status(r)}')
@@ -216,7 +223,7 @@ def check_round(r: Round, out: str, record: Path, log_dir: Path, shm_before: set
     r.recording = _check_recording(r, record)
     if r.recording not in ('valid', 'absent'):
         r.problems.append(f'recording: {r.recording}')
-    left = leftovers(shm_before, _domain(out, log_dir))
+    left = leftovers(shm_before, held, _domain(out, log_dir))
     if left:
         r.problems.append(f'shared-memory files left: {left}')
 
@@ -248,18 +255,18 @@ def _check_recording(r: Round, record: Path) -> str:
     return 'valid'
 
 
-def leftovers(before: set, domain: Optional[int]) -> List[str]:
-    """FastDDS files new since ``before`` that belong to no live process: an unlocked lock file,
-    or a port of ``domain`` (7400 + 250 * domain + 0..249), with their segments and mutexes."""
-    ours = range(7400 + 250 * domain, 7400 + 250 * (domain + 1)) if domain is not None else range(0)
-    left = []
-    for name in sorted(shm_snapshot() - before):
-        port = re.match(r'(?:sem\.)?fastrtps_port(\d+)', name)
-        if port and int(port.group(1)) in ours:
-            left.append(name)
-        elif name.endswith(('_el', '_sl')) and not lock_held(SHM_DIR / name):
-            left.append(name)
-    return left
+def leftovers(before: set, held: set, domain: Optional[int]) -> List[str]:
+    """FastDDS files of the run left behind: those of the groups whose lock files its processes
+    held (``held``, from /proc/locks while they ran: files of a concurrent suite's processes never
+    count) that no live process holds now, and any new port file of the run's ``domain``."""
+    left = set(shm_left_by(held, domain, frozenset(before)))
+    if domain is not None:
+        ours = range(7400 + 250 * domain, 7400 + 250 * (domain + 1))
+        for name in shm_snapshot() - before:
+            port = re.match(r'(?:sem\.)?fastrtps_port(\d+)', name)
+            if port and int(port.group(1)) in ours:
+                left.add(name)
+    return sorted(left)
 
 
 def main(argv=None) -> int:
