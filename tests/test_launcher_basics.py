@@ -10,6 +10,8 @@ import os
 import signal
 import subprocess
 import sys
+import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -164,3 +166,34 @@ def test_ctrl_c_summarises_only_a_file_this_run_wrote(tmp_path, untrained_polici
         assert 'earlier file, left as it was' in out and 'avd (' not in out, out
     else:  # it had frames: it saved them, and that file is summarised
         assert 'avd (' in out and '(interrupted)' in out, out
+
+
+def test_a_signal_during_the_checks_is_not_lost_when_an_import_swallows_it(monkeypatch):
+    """``import torch`` (the policy's check) swallows a KeyboardInterrupt raised inside it: the
+    launcher notes the signal instead, and run() stops at once."""
+    from knode_swarm_ros.nodes.swarm import cli
+
+    def checks_that_swallow(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the handler runs here
+        except KeyboardInterrupt:  # what the import does
+            pass
+        return SimpleNamespace(temporary_dir=False)
+
+    seen = {}
+
+    def fake_run(plan, pending=()):
+        seen['pending'] = list(pending)
+        return 130 if pending else 0
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    monkeypatch.setattr(cli, 'plan_run', checks_that_swallow)
+    monkeypatch.setattr(cli, 'run', fake_run)
+    try:
+        with pytest.raises(SystemExit) as exc:
+            cli.main(['--record', 'x.npz'])
+    finally:
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    assert exc.value.code == 130 and seen['pending'] == [signal.SIGINT]

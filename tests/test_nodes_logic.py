@@ -373,6 +373,25 @@ def test_simulator_realtime_zeroes_old_commands_and_keeps_the_newest():
     assert sim.counters.zeroed > 10
 
 
+def test_simulator_says_which_robots_it_stops_for_silence_and_since_when():
+    spec = get_scenario('flock2d')
+    sim = SwarmSim('flock2d', np.array([z2(0, 0), z2(3, 0)]), spec.dt, 'lockstep')
+    assert sim.offer(0, 0, [0.0, 0.0]) == 'accepted'
+    sim.declare_lost([1])
+    sim.advance()
+    assert sim.silent_since == {1: 0} and sim.report()['silent_since'] == {'1': 0}
+    assert sim.offer(1, sim.stamp_ns, [0.0, 0.0]) == 'rejoined' and sim.silent_since == {}
+    # realtime: a robot that never commanded is starting, not silent; one whose commands stopped is
+    rt = SwarmSim('flock2d', np.array([z2(0, 0), z2(3, 0)]), spec.dt, 'realtime', command_timeout=0.05)
+    assert rt.offer(0, 0, [1.0, 0.0]) == 'accepted'
+    for _ in range(10):
+        rt.advance()
+    assert rt.silent_since == {0: 6}  # 0.05 s = 5 steps after its command of step 0
+    assert rt.offer(0, rt.stamp_ns, [1.0, 0.0]) == 'accepted'
+    rt.advance()
+    assert rt.silent_since == {}
+
+
 def test_simulator_latency_figures():
     spec = get_scenario('flock2d')
     sim = SwarmSim('flock2d', np.array([z2(0, 0), z2(3, 0)]), spec.dt, 'lockstep')

@@ -122,6 +122,8 @@ class SimLifecycle:
     def status_fields(self) -> Dict:
         """The status message's fields (JSON)."""
         fields = dict(self.meta, phase=self.phase, step=self.sim.step, lost=sorted(self.sim.lost))
+        # JSON object keys are strings: robot id -> the step since which the simulator stops it
+        fields['silent_since'] = {str(r): s for r, s in sorted(self.sim.silent_since.items())}
         if self.phase == 'waiting':
             fields['agents_ready'] = sum(1 for v in self.agent_ready.values() if v)
         if self.phase == 'done':

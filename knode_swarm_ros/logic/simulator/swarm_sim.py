@@ -290,6 +290,7 @@ class SwarmSim:
         self.applied = np.zeros((self.n, m))  # what the last step applied
         self.answered = set()  # lockstep: robots that answered self.step
         self.lost = set()  # lockstep: not waited for
+        self.silent_since: Dict[int, int] = {}  # robot -> step since which it is stopped for silence
         self._settled = 0  # lockstep: robots answered or lost (|answered | lost|)
         self.counters = _Counters()
         self.latency: List[float] = []  # wall seconds, state published -> first command
@@ -356,6 +357,7 @@ class SwarmSim:
             self.answered.add(robot)
             if robot in self.lost:  # (settled already, as lost)
                 self.lost.discard(robot)
+                self.silent_since.pop(robot, None)
                 c.rejoined += 1
                 return 'rejoined'
             self._settled += 1
@@ -395,6 +397,7 @@ class SwarmSim:
         for r in robots:
             if r not in self.lost:
                 self.lost.add(r)
+                self.silent_since.setdefault(r, self.step)
                 self.counters.lost_events += 1
                 self._settled += r not in self.answered
 
@@ -409,6 +412,7 @@ class SwarmSim:
             command = self.commands.copy()
             if self.mode == 'realtime':
                 old = (self.command_tick < 0) | (self.tick - self.command_tick > self.command_timeout_ticks)
+                self._note_silent(old & (self.command_tick >= 0))
             else:
                 old = np.zeros(self.n, dtype=bool)
                 old[sorted(self.lost)] = True
@@ -427,6 +431,14 @@ class SwarmSim:
         self._settled = len(self.lost)
         return self.states
 
+    def _note_silent(self, silent: np.ndarray) -> None:
+        """Realtime: file robots whose commands stopped (``silent [n]``; a robot that never sent
+        one is still starting, not silent) from this step, forget those that command again."""
+        for r in np.flatnonzero(silent):
+            self.silent_since.setdefault(int(r), self.step)
+        for r in [r for r in self.silent_since if not silent[r]]:
+            del self.silent_since[r]
+
     def stop_commands(self) -> np.ndarray:
         """``[n, m]``: the command that stops each robot from its current state (see module doc)."""
         return self.robots.stop_commands(self.stop_limit, self.h)
@@ -440,6 +452,7 @@ class SwarmSim:
             'step': self.step,
             'robots': self.n,
             'lost': sorted(self.lost),
+            'silent_since': {str(r): s for r, s in sorted(self.silent_since.items())},
             'counters': dict(self.counters.__dict__),
             'latency_ms': {k: v for k, v in lat.items()},
             'states': self.states.tolist(),

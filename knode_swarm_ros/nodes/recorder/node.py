@@ -8,7 +8,9 @@ state topic; from poses the velocities are the agents' estimates,
 the simulator's lockstep flow control) and live ``recorder/avd`` / ``recorder/amd``
 (std_msgs/Float64). It writes ``output`` (the docs/DESIGN.md trajectory format, one trajectory,
 atomically) when the simulator reports ``done`` and every frame up to the final one is here
-(or ``grace_period`` later, filling gaps), and also when stopped with Ctrl-C or SIGTERM.
+(or ``grace_period`` later, filling gaps), and also when stopped with Ctrl-C or SIGTERM. Robots
+the simulator stops for silence (their agent died or stalled) are in the file's meta ``silent``:
+robot -> the step since which, as the simulator last reported it.
 """
 
 from __future__ import annotations
@@ -147,6 +149,7 @@ class RecorderNode(Node):
         if self.frame_every:
             self.frames.set_every(self.frame_every)
         self.source = {}
+        self.silent = {}  # robot -> step since which the simulator stops it (its last status)
         self.phase = 'recording'
         self.final_step = None
         self._done_wall = None
@@ -239,9 +242,12 @@ class RecorderNode(Node):
         self.source = {
             k: v
             for k, v in status.items()
-            if k not in ('phase', 'step', 'lost', 'agents_ready', 'final_step')
+            if k not in ('phase', 'step', 'lost', 'silent_since', 'agents_ready', 'final_step')
         }
         self._substeps = int(status.get('substeps') or 1)
+        silent = status.get('silent_since')
+        if isinstance(silent, dict):  # a status from elsewhere may hold anything: ids and steps only
+            self.silent = {str(r): s for r, s in silent.items() if str(r).isdigit() and type(s) is int}
         every = int(status.get('publish_every') or 0)
         if every and not self.frame_every:
             self.frames.set_every(every)
@@ -319,6 +325,7 @@ class RecorderNode(Node):
             'source': self.source,
             'interrupted': interrupted,
             'counters': dict(self.frames.counters),
+            'silent': self.silent,
             **info,
         }
         if self.fleet.path:

@@ -11,7 +11,7 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 from ..common.startup import block_stop_signals
 
@@ -52,6 +52,8 @@ class Child:
     reported: bool = False
     marker: str = ''  # a log line fragment that says the process is past its checks
     marked: bool = False
+    watch: Tuple[str, ...] = ()  # log line fragments whose latest line is kept in ``seen``
+    seen: Dict[str, str] = field(default_factory=dict)
 
     @property
     def pid(self) -> int:
@@ -67,6 +69,9 @@ class Child:
             self.tail = (self.tail + [line])[-15:]
             if self.marker and self.marker in line:
                 self.marked = True
+            for fragment in self.watch:
+                if fragment in line:
+                    self.seen[fragment] = line
             if self.echo == 'all' or (self.echo == 'problems' and _ECHO_RE.search(line)):
                 print(f'  [{self.name}] {line}', flush=True)
 
@@ -91,6 +96,10 @@ _STARTED = {
     'monitor': 'watching ',
 }
 
+#: What the supervisor needs to know of a node's progress: the simulator running, then done (its
+#: last step), the recorder's file written (with '(interrupted)' when a signal stopped it).
+WATCH = {'simulator': (' s: running', 'done: '), 'recorder': ('wrote ',)}
+
 
 def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Path, echo: str) -> Child:
     log_path = run_dir / f'{name}.log'
@@ -105,7 +114,10 @@ def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Pat
         cwd=str(run_dir),
     )
     os.set_blocking(proc.stdout.fileno(), False)
-    return Child(name, proc, log_path, open(log_path, 'wb'), echo, marker=_STARTED[name.split('_')[0]])
+    kind = name.split('_')[0]
+    return Child(
+        name, proc, log_path, open(log_path, 'wb'), echo, marker=_STARTED[kind], watch=WATCH.get(kind, ())
+    )
 
 
 class Children:

@@ -9,7 +9,7 @@ import os
 import signal
 import time
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Sequence
 
 from knode_swarm_ros.logic.common import EXIT_AGENT_LOST, EXIT_CONFIG, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK
 from knode_swarm_ros.logic.reporting import write_json_report
@@ -27,8 +27,9 @@ __all__ = ['run', 'MONITOR']
 MONITOR = 'monitor'  # the process that nothing waits for
 
 
-def run(plan: Plan) -> int:
-    """Start, supervise and stop the processes of ``plan``; returns the exit status."""
+def run(plan: Plan, pending: Sequence[int] = ()) -> int:
+    """Start, supervise and stop the processes of ``plan``; returns the exit status. ``pending``:
+    signals received before (during the checks), which stop the run at once."""
     plan.record.parent.mkdir(parents=True, exist_ok=True)  # checked by plan_run (a fresh clone has no out/)
     env = child_environment(plan.domain_id)
     commands, env = hosting.place(node_commands(plan), env, plan.netns)
@@ -45,6 +46,8 @@ def run(plan: Plan) -> int:
         children.interrupted = True
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    for signum in list(pending)[:1]:  # (read after ours are installed: none is lost in between)
+        on_signal(signum, None)
     code = EXIT_OK
     lost_agents: List[str] = []
     t0 = time.monotonic()
@@ -68,6 +71,7 @@ def run(plan: Plan) -> int:
                         check_control_period(plan.rate, plan.dt).describe('--rate')
                         or f'control period = policy dt ({plan.dt:g} s)'
                     )
+            children.pump(0.0)  # a signal already pending: start nothing
             failed = _start_in_stages(plan, commands, env, children, t0)
             pids = {name: c.pid for name, c in children.items.items()}
             write_json_report(str(plan.run_dir / 'pids.json'), pids, indent=1)
@@ -138,6 +142,13 @@ def _file_identity(path: Path):
     return (st.st_ino, st.st_size, st.st_mtime_ns)
 
 
+def _saved_whole(rec) -> bool:
+    """Whether the recorder's log says it wrote the whole run (a signal makes it save what it has,
+    marked '(interrupted)', and exit 0 too)."""
+    line = rec.seen.get('wrote ', '')
+    return bool(line) and '(interrupted)' not in line
+
+
 def _start_in_stages(
     plan: Plan, commands: Dict[str, List[str]], env: Dict[str, str], children: Children, t0: float
 ) -> Optional[int]:
@@ -181,12 +192,14 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
     rec = children.items['recorder']
     while True:
         children.pump(0.1)
+        if any(not c.reported and c.proc.poll() is not None for c in children.items.values()):
+            children.drain()  # its last lines (done, wrote) decide how it ended
         for c in children.items.values():
             if c.reported or c.proc.poll() is None:
                 continue
             c.reported = True
             rc = c.proc.returncode
-            if c is rec and rc == 0:
+            if c is rec and rc == 0 and _saved_whole(rec):
                 continue  # saved after the simulator said done
             if c.name == MONITOR:  # an observer: the run goes on as it would without it
                 _say(f'the monitor (pid {c.pid}) {c.how_it_ended()}: the run goes on without it')
@@ -194,7 +207,7 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
             if c.name == 'lifecycle_manager' and rc == 0:
                 _say('every agent configured, then activated together')
                 continue
-            if c is sim and rc == 0:
+            if c is sim and rc == 0 and 'done: ' in sim.seen:
                 _say('the simulator has finished')
                 end = time.monotonic() + 15.0
                 while rec.proc.poll() is None and time.monotonic() < end:
@@ -216,6 +229,9 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
                 if rc == EXIT_CONFIG:
                     _say('an agent refused its configuration: stopping the run')
                     return EXIT_CONFIG
+                if ' s: running' not in sim.seen:  # else the simulator would wait --startup-timeout for it
+                    _say('an agent process died before the run started: stopping the run')
+                    return EXIT_FAILURE
                 if plan.on_agent_exit == 'stop':
                     _say('--on-agent-exit stop: stopping the run')
                     return EXIT_FAILURE
@@ -225,7 +241,8 @@ def _supervise(plan: Plan, children: Children, lost_agents: List[str], t0: float
                     f'{"their" if len(held) > 1 else "its"} last command'
                 )
             else:
-                _say(f'the {c.name} (pid {c.pid}) {why}{detail}: stopping the run')
+                early = ' before the run was over (stopped by a signal?)' if rc == 0 else ''
+                _say(f'the {c.name} (pid {c.pid}) {why}{early}{detail}: stopping the run')
                 return EXIT_CONFIG if rc == EXIT_CONFIG else EXIT_FAILURE
         if plan.timeout and time.monotonic() - t0 > plan.timeout:
             _say(f'--timeout {plan.timeout:g} s reached: stopping the run')
