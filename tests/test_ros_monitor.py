@@ -33,6 +33,7 @@ pytestmark = pytest.mark.ros
 WAIT_S = 240
 OK_RGB = np.array([26, 102, 230])  # the page's colour of a healthy robot
 _URL = re.compile(r'page at (http://127\.0\.0\.1:\d+/)')
+_STEP = re.compile(r'\bstep (\d+)(?:/\d+)? \(t = ')  # the launcher's progress line
 
 
 class Launcher:
@@ -62,6 +63,16 @@ class Launcher:
             assert self.proc.poll() is None, '\n'.join(self.lines)
             time.sleep(0.1)
         raise AssertionError(f'{pattern!r} not seen:\n' + '\n'.join(self.lines))
+
+    def wait_for_step(self, step: int) -> None:
+        """Until the launcher's progress line reports a step >= ``step``."""
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline:
+            if any(int(m.group(1)) >= step for m in map(_STEP.search, list(self.lines)) if m):
+                return
+            assert self.proc.poll() is None, '\n'.join(self.lines)
+            time.sleep(0.1)
+        raise AssertionError(f'step {step} not reached:\n' + '\n'.join(self.lines))
 
     def finish(self, sig=None) -> int:
         if sig is not None:
@@ -104,6 +115,10 @@ def test_page_in_chromium_shows_the_recorded_swarm(run_dir):
         shown = browser.evaluate('monitor.pause()')
         view = browser.evaluate('monitor.hello')
         pixels = browser.screenshot()
+        # The recorder files a step a moment after the monitor shows it: stop once the run is
+        # well past every step the page and the WebSocket showed, so the recording holds them.
+        seen = max([shown['step']] + [decode_tick(t, 2)['step'] for t in ticks])
+        swarm.wait_for_step(seen + 10)
     finally:
         if browser is not None:
             browser.close()
