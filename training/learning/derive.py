@@ -63,7 +63,8 @@ def auto_fields(raw: Dict[str, Any]) -> List[str]:
     out = []
     for dotted in DERIVED_FIELDS:
         section, key = dotted.split('.')
-        if (raw.get(section) or {}).get(key) == AUTO:
+        part = raw.get(section)
+        if isinstance(part, dict) and part.get(key) == AUTO:  # a section that is no mapping is refused later
             out.append(dotted)
     return out
 

@@ -60,6 +60,9 @@ _EXPLAIN = {
     'too_future': 'stamped further ahead of the clock than future_tolerance',
 }
 
+#: How long after the first robot is heard a robot never heard is named (s).
+MISSING_AFTER_S = 5.0
+
 
 class AgentNode(ManagedAgentMixin, LifecycleNode):
     """Thin ROS wrapper around :class:`AgentLogic` (see the module doc and docs/ros.md); a
@@ -144,7 +147,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         )
         self.status_pub = self.create_publisher(String, fleet.status_topic(robot_id), qos.STATUS)
         self.odom_subs = self.states.subscribe(self, ids, self._on_odom)
-        self._missing_since = time.monotonic()
+        self._missing_since = None  # when the swarm was first heard (monotonic s)
         self.on_state = (
             self.logic.ticks is not None
         )  # realtime: ticks come with the own state (realtime_tick.py)
@@ -330,7 +333,12 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
     def _report_missing(self) -> None:
         """Name, now and then, the fleet's robots never heard (left out of every Y until they are)."""
         missing = self.logic.missing()
-        if missing and time.monotonic() - self._missing_since >= self.logic.config.state_timeout:
+        if not missing or len(missing) == len(self.logic.ids):
+            return  # nothing heard yet: the swarm is still being discovered, no robot is missing
+        if self._missing_since is None:
+            self._missing_since = time.monotonic()
+        # a robot may start a little later than the others: name it once that is past
+        if time.monotonic() - self._missing_since >= max(MISSING_AFTER_S, self.logic.config.state_timeout):
             self._throttled(
                 'missing', f'never heard: {missing_names(self.fleet, missing)} (left out of Y)', True
             )
