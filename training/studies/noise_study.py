@@ -9,7 +9,8 @@ flock2d ground truth as PoseStamped bags (:func:`write_mocap_bag`: noise, 0.5 ms
 ``training.import_bag`` call with the defaults (resampled at the truth's 100 Hz), trains with each
 ``--objectives`` config (``one_step``: config/train_flock2d.yaml, derivatives from the importer's
 smoother; ``multi_step``: config/train_flock2d_multistep.yaml, trajectory matching on positions,
-fine-tuning that case's one-step run) and evaluates the policy with ``training.evaluate`` on
+fine-tuning that case's one-step run), both holding out a fifth of the episodes for validation
+(``data.val_fraction``, as config/train_recorded.yaml), and evaluates the policy with ``training.evaluate`` on
 ``--test-starts`` clean held-out starts of the same truth. Every step runs as its own command with
 its log in the case's directory; a step whose output exists is skipped, so a killed study resumes
 where it stopped. One row per (case, objective) goes to ``OUT/results.jsonl`` (final avd and amd
@@ -40,7 +41,7 @@ import numpy as np
 
 from knode_swarm_ros.bag import POSE_STAMPED, BagWriter, ns_to_stamp
 from knode_swarm_ros.core.cli import cli
-from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.errors import KnodeError, RunError
 
 __all__ = ['MocapNoise', 'write_mocap_bag', 'truth_at', 'main']
 
@@ -157,7 +158,7 @@ class Study:
         with open(log, 'w') as f:
             rc = subprocess.call([sys.executable, '-m'] + cmd, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT)
         if rc != 0 or not done.exists():
-            raise KnodeError(f'{cmd[0]} failed (exit {rc}); see {log}')
+            raise RunError(f'{cmd[0]} failed (exit {rc}); see {log}')
 
     def truth(self) -> Path:
         """Ground truth: ``--episodes`` recorded + ``--test-starts`` held-out trajectories (test split)."""
@@ -202,7 +203,14 @@ class Study:
                 self.log(f'{d.name} {objective}: done, skipped')
                 continue
             run = d / objective
-            sets = [f'training.max_minutes={a.max_minutes}', 'training.threads=1'] + list(a.set or [])
+            # the configs hold out 8 validation trajectories, which count episodes here: hold out
+            # data.val_fraction (a fifth) of them instead, as config/train_recorded.yaml does
+            sets = [
+                'data.val_trajectories=null',
+                f'training.max_minutes={a.max_minutes}',
+                'training.threads=1',
+            ]
+            sets += list(a.set or [])
             if objective == 'multi_step':
                 sets.append(f'multistep.init={d / "one_step"}')
                 if not (d / 'one_step' / 'policy.pt').exists():
@@ -296,6 +304,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         '--set', action='append', metavar='SECTION.KEY=VALUE', help='override a config field (all)'
     )
     args = p.parse_args(argv)
+    for name in ('episodes', 'test_starts', 'seconds', 'max_minutes'):
+        if getattr(args, name) <= 0:
+            raise KnodeError(f'--{name.replace("_", "-")} must be > 0, got {getattr(args, name):g}')
+    if min(args.noise) < 0 or min(args.rates) <= 0:
+        raise KnodeError(f'--noise must be >= 0 and --rates > 0, got {args.noise} and {args.rates}')
     study = Study(args)
     truth = study.truth()
     for rate in args.rates:
