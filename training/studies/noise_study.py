@@ -242,6 +242,7 @@ class Study:
                 f.write(json.dumps(row) + '\n')
             self.log(f'{d.name} {objective}: {row_text(row)}')
             (self.out / 'summary.md').write_text(summary(self.rows()))
+            figure(self.rows(), self.out / 'noise_study.png')
 
 
 def estimated_noise(data: Path) -> Optional[float]:
@@ -282,6 +283,41 @@ def summary(rows: List[Dict[str, Any]]) -> str:
             f'{r["load"][0]}-{r["load"][1]} |'
         )
     return '\n'.join(lines) + '\n'
+
+
+def figure(rows: List[Dict[str, Any]], path: Path) -> None:
+    """Final avd (mean and std over the held-out starts) and amd error against the noise, one line
+    per (objective, rate); the truth's avd as a dotted line."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, (ax_avd, ax_amd) = plt.subplots(1, 2, figsize=(10, 4))
+    for key in sorted({(r['objective'], r['rate_hz']) for r in rows}):
+        sel = sorted((r for r in rows if (r['objective'], r['rate_hz']) == key), key=lambda r: r['noise_mm'])
+        x = [r['noise_mm'] for r in sel]
+        f = [r['final'] for r in sel]
+        label = f'{key[0]}, {key[1]:g} Hz'
+        ax_avd.errorbar(
+            x,
+            [v['avd_final']['mean'] for v in f],
+            [v['avd_final']['std'] for v in f],
+            label=label,
+            marker='o',
+            capsize=3,
+        )
+        rel = [100 * (v['amd_final']['mean'] / v['truth_amd_final']['mean'] - 1) for v in f]
+        ax_amd.plot(x, rel, marker='o', label=label)
+    if rows:
+        ax_avd.axhline(rows[0]['final']['truth_avd_final']['mean'], ls=':', c='k', label='truth')
+    ax_avd.set(xlabel='position noise (mm)', ylabel='final avd (held-out starts)', yscale='log')
+    ax_amd.set(xlabel='position noise (mm)', ylabel='final amd vs truth (%)')
+    ax_amd.axhline(0, ls=':', c='k')
+    ax_avd.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 @cli('python -m training.studies.noise_study')
