@@ -217,6 +217,8 @@ class Study:
                     raise KnodeError(f'{d.name}: multi_step fine-tunes the one_step run; list one_step first')
             cmd = ['training.train', '--config', CONFIGS[objective], '--data', str(data), '--out', str(run)]
             cmd += [x for s in sets for x in ('--set', s)] + ['--no-progress']
+            if run.exists() and not (run / 'policy.pt').exists():  # a killed training: start it again
+                cmd.append('--overwrite')
             load0, t0 = os.getloadavg()[0], time.time()
             self.run(cmd, d / f'train_{objective}.log', run / 'policy.pt')
             minutes = (time.time() - t0) / 60
