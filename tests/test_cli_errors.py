@@ -75,6 +75,7 @@ CASES = [
     ('studies.crowding', '{tmp}/missing.json', 'missing.json'),
     ('studies.knowledge_variant', '{tmp}/missing.pt --set collision_d0=0.5 --out {tmp}/v.pt', 'missing.pt'),
     ('studies.unicycle_study', '--policy {tmp}/missing.pt --out {tmp}/out', 'missing.pt'),
+    ('studies.noise_study', '--out {tmp}/out --episodes 0', '--episodes'),
     ('studies.provenance', '{tmp}/missing.pt --data data/flock2d.npz', 'missing.pt'),
     ('demo', '--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out', 'missing.pt'),
     ('studies.gains', '--policy {tmp}/missing.pt --steps 3 --frames 1 2', 'missing.pt'),

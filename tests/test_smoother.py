@@ -179,3 +179,46 @@ def test_noisy_recordings_import_and_train_in_seconds(tmp_path, capsys):
     assert rc == 0, err
     assert 'episodes held out whole' in out + err
     assert (tmp_path / 'run' / 'policy.pt').is_file()
+
+
+@pytest.mark.parametrize('sigma', [0.002, 0.01])
+def test_model_selection_ranks_the_same_on_noisy_validation_data(sigma):
+    """Selection compares rollouts with the validation data only through their final amd (positions,
+    averaged over pairs and the last frames), never their noisy velocities: the score of two
+    candidates moves by far less than their difference when the validation data carry mocap noise."""
+    from knode_swarm_ros.core import get_scenario
+    from training.assessment.scores import final_metrics, selection_score
+
+    spec = get_scenario('flock2d')
+    truth = np.stack([flock_truth(T=300, n=5)] * 4)  # [S, T, n, 4]
+    rng = np.random.default_rng(0)
+    noisy = truth + np.concatenate(
+        [rng.normal(0.0, sigma, truth.shape[:-1] + (2,)), rng.normal(0.0, 0.05, truth.shape[:-1] + (2,))], -1
+    )
+    good, bad = truth.copy(), truth.copy()
+    bad[..., :2] *= 1.1  # 10 % too far apart
+    for cand in (good, bad):
+        clean_score = selection_score(spec, final_metrics(spec, cand, truth))
+        noisy_score = selection_score(spec, final_metrics(spec, cand, noisy))
+        assert abs(noisy_score - clean_score) < 0.01
+    scores = [selection_score(spec, final_metrics(spec, c, noisy)) for c in (good, bad)]
+    assert scores[0] < scores[1] - 0.05
+
+
+def test_the_noise_study_tabulates_and_plots_its_rows(tmp_path):
+    from training.studies.noise_study import case_name, figure, summary
+
+    def stat(mean):
+        return {'mean': mean, 'std': 0.001}
+
+    final = {'avd_final': stat(0.01), 'amd_final': stat(0.77), 'truth_amd_final': stat(0.7)}
+    final['truth_avd_final'] = stat(0.006)
+    row = {'case': case_name(2, 120), 'noise_mm': 2.0, 'rate_hz': 120.0, 'objective': 'one_step'}
+    row.update({'noise_estimate_mm': 2.01, 'final': final, 'train_minutes': 1.5, 'load': [3.0, 2.5]})
+    assert row['case'] == 'n2mm_120hz'
+    table = summary([row])
+    assert (
+        '| 2 | 120 | one_step | 2.01 | 0.0100 ± 0.0010 | 0.770 | 0.700 | +10.0 % | 1.5 | 3.0-2.5 |' in table
+    )
+    figure([row], tmp_path / 'f.png')
+    assert (tmp_path / 'f.png').stat().st_size > 0
