@@ -243,6 +243,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--rate', type=float, default=120.0, help='sample rate of the noisy recording, Hz')
     parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
     args = parser.parse_args(argv)
+    flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
+    if args.noise_mm is not None and flat:
+        parser.error(f'--noise-mm needs a velocity state; {", ".join(flat)} has positions only')
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
     results = {}
     for name in args.laws:
