@@ -148,3 +148,42 @@ def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     assert 'Order parameters' in (out / 'summary.md').read_text()
     z0 = initial_states(law, 2, 6, 9)
     assert simulate(law, z0, 3).shape == (2, 4, 6, 2)
+
+
+def test_a_noisy_recording_of_a_law_is_positions_at_the_rate_with_noise_and_drops(tmp_path):
+    """write_noisy_tracks: positions only at the given rate; noise-free it is the law itself, also
+    between its steps (the zero-order hold's quadratic steps); the noise has the given std."""
+    import csv
+
+    from training.studies.custom_laws import write_noisy_tracks
+    from training.studies.laws import LAWS, Law, initial_states, simulate
+
+    base = LAWS['mill2d']
+    law = Law('tiny', base.scenario, base.command, base.start_radius_per_sqrt_n, 1.0, 6)
+    truth = simulate(law, initial_states(law, 1, 4, 3), law.steps)[0]  # [7, 4, 4]
+
+    def read(noise, jitter=0.0, drop=0.0):
+        (path,) = write_noisy_tracks(law, str(tmp_path / str(noise)), 1, 4, 3, noise, 100.0, jitter, drop)
+        with open(path) as fh:
+            rows = list(csv.reader(fh))
+        return rows[0], np.array(rows[1:], dtype=float)
+
+    header, clean = read(0.0)
+    assert header == ['t', 'id', 'x', 'y']
+    assert len(clean) in (4 * 30, 4 * 31)  # 0.3 s at 100 Hz, 4 robots (the last stamp rounds either way)
+    at_steps = clean[np.isclose(clean[:, 0] % law.scenario.dt, 0) | np.isclose(clean[:, 0] % 0.05, 0.05)]
+    step = np.rint(at_steps[:, 0] / law.scenario.dt).astype(int)
+    robot = (at_steps[:, 1].astype(int) - 10) // 3
+    assert np.allclose(at_steps[:, 2:], truth[step, robot, :2], atol=1e-8)
+    # between two steps: the position of the zero-order hold's constant acceleration
+    mid = clean[np.isclose(clean[:, 0], 0.07) & (clean[:, 1] == 10), 2:][0]
+    p, v, a = truth[1, 0, :2], truth[1, 0, 2:], (truth[2, 0, 2:] - truth[1, 0, 2:]) / law.scenario.dt
+    assert np.allclose(mid, p + v * 0.02 + 0.5 * a * 0.02**2, atol=1e-8)
+    _, noisy = read(0.01, jitter=0.0005, drop=0.2)
+    assert 0.6 * len(clean) < len(noisy) < len(clean)
+    assert not np.allclose(noisy[:4, 0], 0.0)
+    same = np.isclose(clean[:, 0][:, None], np.rint(noisy[:, 0] * 100)[None] / 100) & (
+        clean[:, 1][:, None] == noisy[:, 1][None]
+    )
+    i, j = np.nonzero(same)
+    assert 0.007 < np.std(noisy[j, 2:] - clean[i, 2:]) < 0.013

@@ -5,6 +5,11 @@ your own").
 
     python -m training.studies.custom_laws --out runs/laws                     # all three laws
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
+    python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 2 --rate 120
+
+With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
+positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
+importer's smoother derives the velocities from noisy poses; the folder is then ``OUT/LAW_Nmm_RHz``.
 
 Per law under ``OUT/LAW/``: ``scenario.yaml``, ``csv/run_*.csv`` (10 robots, written by the law's
 simulator), ``tracks.npz`` (the import), ``run/`` (the training run), ``eval_n10``/``eval_n30``
@@ -56,6 +61,53 @@ def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: in
             for t in range(states.shape[1]):
                 for i in range(robots):
                     w.writerow([f'{t * spec.dt:.6f}', 10 + 3 * i, *(f'{x:.9g}' for x in states[s, t, i])])
+        paths.append(path)
+    return paths
+
+
+def write_noisy_tracks(
+    law: Law,
+    folder: str,
+    trajectories: int,
+    robots: int,
+    seed: int,
+    noise_m: float,
+    rate_hz: float,
+    jitter_s: float = 0.0005,
+    drop: float = 0.01,
+) -> List[str]:
+    """Like :func:`write_tracks`, as a motion-capture system records the law: positions only
+    (t, id, x, y[, z]) sampled at ``rate_hz``, Gaussian noise of ``noise_m`` per axis, stamps
+    jittered by ``jitter_s`` (std) and a fraction ``drop`` of the samples missing."""
+    spec = law.scenario
+    if spec.velocity is None:
+        raise ValueError(f'{law.name}: positions only; the noisy recording needs a velocity state')
+    d = spec.dimensions
+    states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)  # [S, T+1, n, 2d]
+    p, v = states[..., :d], states[..., d:]
+    times = np.arange(0.0, law.steps * spec.dt, 1.0 / rate_hz)
+    k = np.minimum((times / spec.dt).astype(int), law.steps - 1)
+    s = (times / spec.dt - k)[:, None, None]
+    # cubic Hermite on positions and velocities: exact for the zero-order hold's quadratic steps
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    rng = np.random.default_rng(seed + 7919)
+    axes = 'xyz'[:d]
+    os.makedirs(folder, exist_ok=True)
+    paths = []
+    for e in range(trajectories):
+        pe, ve = p[e], v[e]
+        pos = h00 * pe[k] + h10 * spec.dt * ve[k] + h01 * pe[k + 1] + h11 * spec.dt * ve[k + 1]
+        pos = pos + rng.normal(0.0, noise_m, pos.shape)
+        stamps = times[:, None] + rng.normal(0.0, jitter_s, (len(times), robots))
+        kept = rng.random((len(times), robots)) >= drop
+        kept[0] = True  # every robot is seen at the start of the episode
+        path = os.path.join(folder, f'run_{e:02d}.csv')
+        with open(path, 'w', newline='') as fh:
+            w = csv.writer(fh)
+            w.writerow(['t', 'id', *axes])
+            for t in range(len(times)):
+                for i in np.flatnonzero(kept[t]):
+                    w.writerow([f'{stamps[t, i]:.6f}', 10 + 3 * i, *(f'{x:.9g}' for x in pos[t, i])])
         paths.append(path)
     return paths
 
@@ -116,12 +168,24 @@ def evaluate_law(law: Law, policy_path: str, out: str, robots: int, starts: int,
 
 
 def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
-    folder = os.path.join(out, law.name)
+    noisy = args.noise_mm is not None
+    folder = os.path.join(out, f'{law.name}_{args.noise_mm:g}mm_{args.rate:g}hz' if noisy else law.name)
     os.makedirs(folder, exist_ok=True)
     scenario = os.path.join(folder, 'scenario.yaml')
     with open(scenario, 'w') as fh:
         yaml.safe_dump(law.scenario.to_dict(), fh, sort_keys=False)
-    csvs = write_tracks(law, os.path.join(folder, 'csv'), args.trajectories, 10, args.seed)
+    if noisy:
+        csvs = write_noisy_tracks(
+            law,
+            os.path.join(folder, 'csv'),
+            args.trajectories,
+            10,
+            args.seed,
+            args.noise_mm / 1000,
+            args.rate,
+        )
+    else:
+        csvs = write_tracks(law, os.path.join(folder, 'csv'), args.trajectories, 10, args.seed)
     data = os.path.join(folder, 'tracks.npz')
     _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
     run_dir = os.path.join(folder, 'run')
@@ -136,7 +200,7 @@ def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
         'train_wall_seconds': round(train_s, 1),
         'load_after_training': load,
     }
-    for robots in (10, 30):
+    for robots in args.eval_robots:
         r = evaluate_law(
             law,
             os.path.join(run_dir, 'policy.pt'),
@@ -149,7 +213,7 @@ def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
         log(f'{law.name}, {robots} robots: ' + ', '.join(f'{k}={v}' for k, v in r['goals'].items()))
     lines = [f'# {law.name}: learnt (config/train_custom.yaml) against the law', '']
     lines.append(f'- training {train_s:.0f} s wall clock, load average after it {load[0]:.1f}')
-    for robots in (10, 30):
+    for robots in args.eval_robots:
         lines += ['', f'## {robots} robots, 8 held-out starts', ''] + order_lines(
             result[f'n{robots}']['orders']
         )
@@ -173,7 +237,15 @@ def main(argv: Optional[List[str]] = None) -> int:
     )
     parser.add_argument('--max-minutes', type=float, default=10.0, help='training.max_minutes of each run')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument(
+        '--noise-mm', type=float, default=None, help='record the law as a mocap system: noise std, mm'
+    )
+    parser.add_argument('--rate', type=float, default=120.0, help='sample rate of the noisy recording, Hz')
+    parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
     args = parser.parse_args(argv)
+    flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
+    if args.noise_mm is not None and flat:
+        parser.error(f'--noise-mm needs a velocity state; {", ".join(flat)} has positions only')
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
     results = {}
     for name in args.laws:
