@@ -37,7 +37,6 @@ from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import get_scenario, parse_scenario_argument
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
 from training.data.bags.options import (
-    GAP_FACTOR,
     ImportOptions,
     ImportResult,
     check_options,
@@ -48,7 +47,7 @@ from training.data.bags.report import build_meta, derivation, message_counts, su
 from training.data.bags.robots import read_robots
 from training.data.derive import derive_states, finite_difference, moving_average, smooth_episode
 from training.data.timeline import segments, stack_episodes, timeline
-from training.data.tracks import SMOOTH_METHODS, TrackError, dataset_meta
+from training.data.tracks import TrackError, add_resample_arguments, dataset_meta
 
 __all__ = [
     'ImportOptions',
@@ -166,48 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         help='explicit robot ids (repeatable), or a YAML mapping NAME: ID; only these names are '
         'robots. Default: the first integer in each topic or frame name',
     )
-    p.add_argument(
-        '--max-gap',
-        type=float,
-        metavar='SECONDS',
-        help=f'a robot silent longer than this cuts the recording; default {GAP_FACTOR:g} x the '
-        "slowest robot's median message interval",
-    )
-    p.add_argument(
-        '--min-duration',
-        type=float,
-        default=1.0,
-        metavar='SECONDS',
-        help='drop segments shorter than this (default 1.0)',
-    )
-    p.add_argument(
-        '--length',
-        type=int,
-        metavar='FRAMES',
-        help='frames per trajectory; default the shortest kept segment. Longer segments are cut '
-        'into windows sharing their boundary frame',
-    )
-    p.add_argument(
-        '--smooth',
-        choices=SMOOTH_METHODS,
-        default='rts',
-        help='rts (default): a Rauch-Tung-Striebel smoother with a constant-acceleration model estimates '
-        "positions and velocities at the samples' stamps, its noise level estimated from the data; "
-        'none: central differences of the resampled positions; moving-average, savgol: those '
-        'differences filtered',
-    )
-    p.add_argument(
-        '--smooth-window', type=int, default=5, metavar='N', help='odd window in output samples (5)'
-    )
-    p.add_argument(
-        '--velocity-estimator',
-        type=int,
-        default=0,
-        metavar='N',
-        help="flock2d: velocities by the agents' causal estimator over N samples, as robots hearing "
-        'poses only estimate them (default 0: finite differences)',
-    )
-    p.add_argument('--smooth-order', type=int, default=2, metavar='K', help='Savitzky-Golay order (2)')
+    add_resample_arguments(p)
     p.add_argument(
         '--use-twist',
         action='store_true',
@@ -227,31 +185,10 @@ def build_parser() -> argparse.ArgumentParser:
         help='boids3d: heading = +x axis of the pose orientation instead of the motion direction',
     )
     p.add_argument(
-        '--heading-diff',
-        choices=('backward', 'central'),
-        default=None,
-        help='boids3d: differences for the motion direction (default backward: the heading at '
-        'frame k is the direction of the last step, as in the first-order rollout)',
-    )
-    p.add_argument(
-        '--min-speed',
-        type=float,
-        default=1e-3,
-        metavar='M_PER_S',
-        help='boids3d: frames slower than this take the nearest valid heading (default 0.001)',
-    )
-    p.add_argument(
         '--stamp',
         choices=('header', 'log'),
         default='header',
         help="time of a sample: header.stamp (default) or the bag's log (receive) time",
-    )
-    p.add_argument(
-        '--test-trajectories',
-        type=int,
-        default=0,
-        metavar='K',
-        help='hold out the last K trajectories as meta.split.test (default 0)',
     )
     return p
 

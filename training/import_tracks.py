@@ -37,11 +37,10 @@ from training.data.derive import SMOOTHER, derive_states, noise_lines, smooth_ep
 from training.data.timeline import segments, stack_episodes, timeline
 from training.data.track_files import read_track_file, single_frame
 from training.data.tracks import (
-    GAP_FACTOR,
-    SMOOTH_METHODS,
     ResampleOptions,
     Track,
     TrackError,
+    add_resample_arguments,
     check_resample_options,
     dataset_meta,
 )
@@ -289,41 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', required=True, metavar='FILE.npz', help='trajectory file to write')
     p.add_argument('--fps', type=float, metavar='HZ', help='frame rate of .npy arrays')
     p.add_argument('--dt', type=float, metavar='SECONDS', help="output step; default the scenario's dt")
-    p.add_argument(
-        '--max-gap',
-        type=float,
-        metavar='SECONDS',
-        help=f'a robot missing longer than this cuts the episode; default {GAP_FACTOR:g} x the slowest '
-        "robot's median sample interval",
-    )
-    p.add_argument(
-        '--min-duration',
-        type=float,
-        default=1.0,
-        metavar='SECONDS',
-        help='drop segments shorter than this (1.0)',
-    )
-    p.add_argument(
-        '--length',
-        type=int,
-        metavar='FRAMES',
-        help='frames per trajectory; default the shortest kept segment of all files. Longer segments '
-        'are cut into windows sharing their boundary frame',
-    )
-    p.add_argument('--smooth', choices=SMOOTH_METHODS, default='rts')
-    p.add_argument('--smooth-window', type=int, default=5, metavar='N')
-    p.add_argument(
-        '--velocity-estimator',
-        type=int,
-        default=0,
-        metavar='N',
-        help="flock2d: velocities by the agents' causal estimator over N samples, as robots hearing "
-        'poses only estimate them (default 0: finite differences)',
-    )
-    p.add_argument('--smooth-order', type=int, default=2, metavar='K')
-    p.add_argument('--heading-diff', choices=('backward', 'central'), default='backward')
-    p.add_argument('--min-speed', type=float, default=1e-3, metavar='M_PER_S')
-    p.add_argument('--test-trajectories', type=int, default=0, metavar='K')
+    add_resample_arguments(p)
     return p
 
 
@@ -348,7 +313,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             smooth_window=args.smooth_window,
             smooth_order=args.smooth_order,
             velocity_estimator=args.velocity_estimator,
-            heading_diff=args.heading_diff,
+            heading_diff=args.heading_diff or 'backward',
             min_speed=args.min_speed,
             test_trajectories=args.test_trajectories,
         )

@@ -9,6 +9,7 @@ options of that shared part are :class:`ResampleOptions` (docs/import_bag.md, do
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from typing import List, Optional
 
@@ -20,6 +21,7 @@ from knode_swarm_ros.core.errors import KnodeError
 from .smoother import SmoothedTrack
 
 __all__ = [
+    'add_resample_arguments',
     'TrackError',
     'Track',
     'ResampleOptions',
@@ -184,3 +186,71 @@ def dataset_meta(
     meta['split'] = split_meta(len(traj_meta), test_trajectories, notes)
     meta['notes'] = notes
     return meta
+
+
+def add_resample_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of :class:`ResampleOptions` on an importer's command line (import_bag and
+    import_tracks read them alike): gaps, segments, smoothing and derivation, the test split."""
+    p.add_argument(
+        '--max-gap',
+        type=float,
+        metavar='SECONDS',
+        help=f'a robot silent longer than this cuts the recording; default {GAP_FACTOR:g} x the '
+        "slowest robot's median sample interval",
+    )
+    p.add_argument(
+        '--min-duration',
+        type=float,
+        default=1.0,
+        metavar='SECONDS',
+        help='drop segments shorter than this (default 1.0)',
+    )
+    p.add_argument(
+        '--length',
+        type=int,
+        metavar='FRAMES',
+        help='frames per trajectory; default the shortest kept segment of all inputs. Longer '
+        'segments are cut into windows sharing their boundary frame',
+    )
+    p.add_argument(
+        '--smooth',
+        choices=SMOOTH_METHODS,
+        default='rts',
+        help='rts (default): a Rauch-Tung-Striebel smoother with a constant-acceleration model estimates '
+        "positions and velocities at the samples' stamps, its noise level estimated from the data; "
+        'none: central differences of the resampled positions; moving-average, savgol: those '
+        'differences filtered',
+    )
+    p.add_argument(
+        '--smooth-window', type=int, default=5, metavar='N', help='odd window in output samples (5)'
+    )
+    p.add_argument(
+        '--velocity-estimator',
+        type=int,
+        default=0,
+        metavar='N',
+        help="flock2d: velocities by the agents' causal estimator over N samples, as robots hearing "
+        'poses only estimate them (default 0: finite differences)',
+    )
+    p.add_argument('--smooth-order', type=int, default=2, metavar='K', help='Savitzky-Golay order (2)')
+    p.add_argument(
+        '--heading-diff',
+        choices=('backward', 'central'),
+        default=None,
+        help='headings: differences for the motion direction (default backward: the heading at '
+        'frame k is the direction of the last step, as in the first-order rollout)',
+    )
+    p.add_argument(
+        '--min-speed',
+        type=float,
+        default=1e-3,
+        metavar='M_PER_S',
+        help='headings: frames slower than this take the nearest valid heading (default 0.001)',
+    )
+    p.add_argument(
+        '--test-trajectories',
+        type=int,
+        default=0,
+        metavar='K',
+        help='hold out the last K trajectories as meta.split.test (default 0)',
+    )
