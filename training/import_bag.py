@@ -47,7 +47,7 @@ from training.data.bags.report import build_meta, derivation, message_counts, su
 from training.data.bags.robots import read_robots
 from training.data.derive import derive_states, finite_difference, moving_average, smooth_episode
 from training.data.timeline import segments, stack_episodes, timeline
-from training.data.tracks import TrackError, add_resample_arguments, dataset_meta
+from training.data.tracks import TrackError, add_resample_arguments, dataset_meta, resample_option_values
 
 __all__ = [
     'ImportOptions',
@@ -207,20 +207,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             topics=split_patterns(args.topics),
             frames=split_patterns(args.frames),
             id_map=parse_id_map(args.id_map) if args.id_map else None,
-            max_gap=args.max_gap,
-            min_duration=args.min_duration,
-            length=args.length,
-            smooth=args.smooth,
-            smooth_window=args.smooth_window,
-            smooth_order=args.smooth_order,
-            velocity_estimator=args.velocity_estimator,
             use_twist=args.use_twist,
             twist_frame=args.twist_frame,
             use_orientation=args.use_orientation,
-            heading_diff=args.heading_diff or 'backward',
-            min_speed=args.min_speed,
             stamp=args.stamp,
-            test_trajectories=args.test_trajectories,
+            **resample_option_values(args),
         )
         result = import_bags(args.bag, opts)
         meta = dict(

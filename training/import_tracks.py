@@ -43,6 +43,7 @@ from training.data.tracks import (
     add_resample_arguments,
     check_resample_options,
     dataset_meta,
+    resample_option_values,
 )
 
 __all__ = ['import_tracks', 'main', 'TrackError']
@@ -306,16 +307,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         opts = ResampleOptions(
             scenario=args.scenario,
             rate=1.0 / dt,
-            max_gap=args.max_gap,
-            min_duration=args.min_duration,
-            length=args.length,
-            smooth=args.smooth,
-            smooth_window=args.smooth_window,
-            smooth_order=args.smooth_order,
-            velocity_estimator=args.velocity_estimator,
-            heading_diff=args.heading_diff or 'backward',
-            min_speed=args.min_speed,
-            test_trajectories=args.test_trajectories,
+            **resample_option_values(args),
         )
         result = import_tracks(args.files, opts, args.fps)
         meta = dict(

@@ -22,6 +22,7 @@ from .smoother import SmoothedTrack
 
 __all__ = [
     'add_resample_arguments',
+    'resample_option_values',
     'TrackError',
     'Track',
     'ResampleOptions',
@@ -253,4 +254,21 @@ def add_resample_arguments(p: argparse.ArgumentParser) -> None:
         default=0,
         metavar='K',
         help='hold out the last K trajectories as meta.split.test (default 0)',
+    )
+
+
+def resample_option_values(args: argparse.Namespace) -> dict:
+    """The :class:`ResampleOptions` fields read by :func:`add_resample_arguments`, from parsed ``args``
+    (each importer adds its scenario, rate and options of its own)."""
+    return dict(
+        max_gap=args.max_gap,
+        min_duration=args.min_duration,
+        length=args.length,
+        smooth=args.smooth,
+        smooth_window=args.smooth_window,
+        smooth_order=args.smooth_order,
+        velocity_estimator=args.velocity_estimator,
+        heading_diff=args.heading_diff or 'backward',
+        min_speed=args.min_speed,
+        test_trajectories=args.test_trajectories,
     )
