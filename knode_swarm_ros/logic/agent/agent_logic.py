@@ -467,10 +467,15 @@ class AgentLogic:
         own = self.buffer.get(self.me, s)
         if own is None:  # fell out of the buffer's horizon while waiting (never in practice): skip it
             return None
+        rows = self.hearing.delayed(s, now_ns)
+        if self.me not in rows.index:
+            # The own state went stale while the tick waited (a process fallen behind its
+            # messages): no command from it; the watchdog stops the robot.
+            return None
         if late:
             self.counters['late_ticks'] += 1
         self._stop_v = None
-        return self._request(s, stamp, own, self.hearing.delayed(s, now_ns))
+        return self._request(s, stamp, own, rows)
 
     def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
         """The stop command of a stale own state (see the module doc)."""
