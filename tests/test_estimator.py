@@ -5,7 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from knode_swarm_ros.core.estimator import VelocityEstimator, fit_weights, lag_s, noise_gain
+from knode_swarm_ros.core.estimator import (
+    StepSampler,
+    VelocityEstimator,
+    fit_weights,
+    lag_s,
+    noise_gain,
+    step_at_or_before,
+)
 from knode_swarm_ros.core.rollout import PoseObserver, rollout
 from knode_swarm_ros.core.saturation import velocity_setpoint
 from knode_swarm_ros.core.scenarios import get_scenario
@@ -140,3 +147,59 @@ def test_import_option_gives_the_agents_estimates_on_the_grid():
     ):
         with pytest.raises(TrackError, match='--velocity-estimator'):
             check_resample_options(bad)
+
+
+# --- which sample stands for a step (StepSampler) ------------------------------------------------
+def test_step_at_or_before_on_and_between_steps():
+    dt = 0.05
+    assert [step_at_or_before(ns, dt) for ns in (0, 1, 49_999_999, 50_000_000, 50_000_001)] == [0, 0, 0, 1, 1]
+    assert step_at_or_before(-1, dt) == -1
+    # a dt whose steps are not whole nanoseconds: the grid is round(s dt 1e9), as the nodes stamp
+    dt = 1 / 30
+    for s in range(200):
+        ns = int(round(s * dt * 1e9))
+        assert step_at_or_before(ns, dt) == s and step_at_or_before(ns - 1, dt) == s - 1
+
+
+def test_a_stream_on_the_grid_files_each_step_sample_at_once():
+    sampler = StepSampler(0.05)
+    got = [sampler.push(j * H_NS) for j in range(16)]  # 100 Hz under a 20 Hz policy
+    assert got == [(None, j // 5) if j % 5 == 0 else (None, None) for j in range(16)]
+
+
+def test_a_stream_off_the_grid_files_the_newest_sample_before_each_step_when_the_next_one_comes():
+    sampler = StepSampler(0.05)
+    stamps = [3_000_000 + j * H_NS for j in range(12)]  # 3 ms after the grid of 10 ms
+    got = [sampler.push(ns) for ns in stamps]
+    # 43 ms is the newest at or before 50 ms: known at 53 ms; 93 ms for 100 ms, at 103 ms
+    assert got[5] == (1, None) and got[10] == (2, None)
+    assert all(g == (None, None) for j, g in enumerate(got) if j not in (5, 10))
+
+
+def test_a_gap_names_only_the_newest_step_passed_and_late_samples_are_forgotten():
+    sampler = StepSampler(0.05)
+    assert sampler.push(43_000_000) == (None, None)
+    assert sampler.push(200_000_000) == (3, 4)  # 43 ms stands for steps 1..3 (3 named), 200 ms is step 4
+    assert sampler.push(150_000_000) == (None, None)  # older: forgotten
+    assert sampler.push(200_000_000) == (None, None)  # repeated
+    assert sampler.push(249_000_000) == (None, None)
+    assert sampler.push(250_000_000) == (None, 5)  # on the step: the sample before stands for none
+
+
+def test_pose_observed_rollout_observes_on_the_grid_so_every_observation_stands_for_its_step():
+    # core.rollout observes at round(t dt 1e9): the rule picks every observation at once, so the
+    # offline rollout and the agents (which apply it) file the same samples.
+    sampler = StepSampler(0.05)
+    assert [sampler.push(int(round(t * 0.05 * 1e9))) for t in range(50)] == [(None, t) for t in range(50)]
+
+
+def test_the_fit_is_made_when_read_and_equals_a_fit_at_every_sample():
+    rng = np.random.default_rng(5)
+    p = rng.normal(size=(30, 3, 2))
+    lazy, eager = VelocityEstimator(6), VelocityEstimator(6)
+    for j in range(30):
+        v = eager.update(j * H_NS, p[j])
+        lazy.push(j * H_NS, p[j])
+        if j % 5 == 0:
+            assert np.array_equal(lazy.velocity, v)
+    assert np.array_equal(lazy.velocity, v)

@@ -19,6 +19,17 @@ Properties (N = ``window`` samples, spaced h seconds, position noise sigma per a
 * noise gain: white position noise gives a velocity error of standard deviation
   ``sigma * sqrt(12 / (N (N^2 - 1))) / h`` per axis (:func:`noise_gain`).
 
+Cost: :meth:`VelocityEstimator.push` only stores a sample; the fit is made when
+:attr:`VelocityEstimator.velocity` is read (once per sample read, cached), so a stream faster
+than the policy costs one fit per filed state, not one per sample.
+
+Which sample stands for a step (:class:`StepSampler`): the newest sample at or before the step's
+time ``stamp_ns(s) = round(s dt 1e9)``. A sample stamped exactly on a step is filed at once; a
+sample between steps is filed (for the newest step it precedes) when the next sample shows that
+no newer one at or before that step will come (one sample of extra latency; a stream on the grid,
+as the simulator's, has none). The agents and the offline rollout (which observes on the grid)
+both apply it, so they file the same samples.
+
 Equality across paths: the agent estimates robot by robot (``p [d]``) and the offline rollout
 all robots at once (``p [..., n, d]``); both accumulate the same weights in the same order with
 elementwise operations only, so their estimates are equal bit for bit. Stamps are integer
@@ -41,6 +52,8 @@ __all__ = [
     'noise_gain',
     'lag_s',
     'fit_weights',
+    'StepSampler',
+    'step_at_or_before',
 ]
 
 #: The default lag (seconds): the 100 Hz design point's 10 samples. At 2 mm of noise per axis it
@@ -105,21 +118,69 @@ class VelocityEstimator:
         """Stamp of the newest sample used (None before any)."""
         return self._stamps[-1] if self._stamps else None
 
+    def push(self, stamp_ns: int, position) -> bool:
+        """Add a sample without fitting (False: not newer than the newest, ignored)."""
+        stamp_ns = int(stamp_ns)
+        if self._stamps and stamp_ns <= self._stamps[-1]:
+            return False
+        self._stamps.append(stamp_ns)
+        self._positions.append(np.array(position, dtype=np.float64, copy=True))
+        self._velocity = None
+        return True
+
     @property
     def velocity(self) -> Optional[np.ndarray]:
-        """The current estimate (None before any sample)."""
+        """The estimate at the newest sample ``[..., dim]`` (None before any sample)."""
+        if self._velocity is None and self._stamps:
+            weights = fit_weights(self._stamps)
+            v = np.zeros_like(self._positions[-1])
+            for w, p in zip(weights, self._positions):  # one fixed order: equal results across shapes
+                v = v + w * p
+            self._velocity = v
         return self._velocity
 
     def update(self, stamp_ns: int, position) -> np.ndarray:
         """Add a sample and return the velocity estimate ``[..., dim]``."""
+        self.push(stamp_ns, position)
+        return self.velocity
+
+
+def step_at_or_before(stamp_ns: int, dt: float) -> int:
+    """The newest step s whose time ``round(s dt 1e9)`` ns is at or before ``stamp_ns``."""
+    step_ns = float(dt) * 1e9
+    s = int(round(int(stamp_ns) / step_ns))
+    return s if int(round(s * step_ns)) <= int(stamp_ns) else s - 1
+
+
+class StepSampler:
+    """Which samples of one stream stand for the steps of ``dt``: the newest at or before each.
+
+    ``push(stamp_ns)`` for every sample in order returns ``(previous_step, this_step)``: the
+    step the previous sample stands for, now that this one is past that step's time (None: none),
+    and the step this sample stands for (None unless it is stamped exactly on a step). A sample
+    not newer than the previous one returns ``(None, None)`` and is forgotten. After a gap only
+    the newest step passed is named (the steps before it have no newer sample either; a delay
+    buffer bridges them).
+    """
+
+    def __init__(self, dt: float):
+        if dt <= 0:
+            raise ValueError(f'dt must be > 0, got {dt}')
+        self.dt = float(dt)
+        self._newest: Optional[int] = None  # stamp of the previous sample
+        self._open = False  # the previous sample is between steps, not yet filed
+
+    def push(self, stamp_ns: int) -> Tuple[Optional[int], Optional[int]]:
         stamp_ns = int(stamp_ns)
-        if self._stamps and stamp_ns <= self._stamps[-1]:
-            return self._velocity
-        self._stamps.append(stamp_ns)
-        self._positions.append(np.array(position, dtype=np.float64, copy=True))
-        weights = fit_weights(self._stamps)
-        v = np.zeros_like(self._positions[-1])
-        for w, p in zip(weights, self._positions):  # one fixed order: equal results across shapes
-            v = v + w * p
-        self._velocity = v
-        return v
+        if self._newest is not None and stamp_ns <= self._newest:
+            return None, None
+        s = step_at_or_before(stamp_ns, self.dt)
+        on_step = int(round(s * self.dt * 1e9)) == stamp_ns
+        previous = None
+        if self._open:
+            passed = s - 1 if on_step else s  # the newest step strictly after the previous sample
+            if passed > step_at_or_before(self._newest, self.dt):
+                previous = passed
+        self._newest = stamp_ns
+        self._open = not on_step
+        return previous, (s if on_step else None)

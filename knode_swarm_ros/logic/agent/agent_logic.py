@@ -268,15 +268,17 @@ class AgentLogic:
         now_ns: Optional[int] = None,
         wall: float = 0.0,
         verdict: Any = '',
+        step: Optional[int] = None,
     ) -> str:
         """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
         ``duplicate`` or the drop reason (see :data:`DROP_REASONS`).
 
         ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
         ``wall`` a monotonic time in seconds (lockstep waiting). ``verdict``: the result of
-        :meth:`check` on these arguments when the caller has it already.
+        :meth:`check` on these arguments when the caller has it already; ``step``: the step the
+        state stands for, when the caller chose it (default: the stamp's nearest).
         """
-        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, verdict)
+        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, verdict, step)
         if step is not None:
             self.react(int(robot), int(stamp_ns), step, outcome == 'accepted', wall)
         return outcome

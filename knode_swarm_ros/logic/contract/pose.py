@@ -9,15 +9,20 @@ offline rollout's :class:`knode_swarm_ros.core.rollout.PoseObserver` makes, bit 
 same poses arrive with the same stamps.
 
 Used by the agents (their own and their neighbours' poses) and the recorder.
+
+A stream faster than the policy (motion capture at 100 Hz under a 20 Hz policy): the agents
+take :meth:`PoseStates.filed`, which feeds every pose to the estimator but maps (and fits) only
+the poses that stand for a step, the newest at or before the step's time
+(:class:`knode_swarm_ros.core.estimator.StepSampler`); :meth:`PoseStates.state` maps every pose.
 """
 
 from __future__ import annotations
 
-from typing import Dict, Optional, Sequence, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from knode_swarm_ros.core.estimator import DEFAULT_WINDOW, VelocityEstimator
+from knode_swarm_ros.core.estimator import DEFAULT_WINDOW, StepSampler, VelocityEstimator
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario
 
 from .rep105 import fields_to_state
@@ -38,10 +43,16 @@ class PoseStates:
     fed to the estimator, so one bad sample does not spoil the next ``window`` estimates.
     """
 
-    def __init__(self, scenario: Union[str, Scenario], window: int = DEFAULT_WINDOW):
+    def __init__(
+        self, scenario: Union[str, Scenario], window: int = DEFAULT_WINDOW, dt: Optional[float] = None
+    ):
         self.spec = scenario if isinstance(scenario, Scenario) else get_scenario(scenario)
         self.window = int(window)
+        self.dt = dt
         self.estimators: Dict[int, VelocityEstimator] = {}
+        self._samplers: Dict[int, StepSampler] = {}
+        self._previous: Dict[int, tuple] = {}  # robot -> its previous pose (stamp, position, quaternion)
+        self._last_filed: Dict[int, Tuple[int, int, np.ndarray]] = {}  # robot -> (step, stamp, z)
 
     @property
     def estimates(self) -> bool:
@@ -62,6 +73,51 @@ class PoseStates:
         if estimator is None:
             estimator = self.estimators[int(robot)] = VelocityEstimator(self.window)
         z[self.spec.velocity] = estimator.update(stamp_ns, p)
+        return z
+
+    def filed(
+        self, robot: int, stamp_ns: int, position: Sequence[float], quaternion: Sequence[float]
+    ) -> List[Tuple[Optional[int], int, np.ndarray]]:
+        """The states to file on hearing robot ``robot``'s pose: ``[(step, stamp_ns, z [d])]``,
+        at most two (the previous pose, once this one is past its step; this pose, when it is
+        stamped on a step), usually none. Every pose feeds the velocity fit; a pose is mapped
+        and fitted only when filed (needs ``dt``).
+
+        A repeated stamp gives the state filed for it again (a retransmission, counted a
+        duplicate by the caller); an older one nothing. A non-finite position gives
+        ``[(None, stamp_ns, z)]`` (the caller drops it as ``non_finite``) and is forgotten.
+        """
+        robot, stamp_ns = int(robot), int(stamp_ns)
+        if not all(np.isfinite(position[: self.spec.position_dim])):
+            return [(None, stamp_ns, self.state(robot, stamp_ns, position, quaternion))]
+        sampler = self._samplers.get(robot)
+        if sampler is None:
+            sampler = self._samplers[robot] = StepSampler(self.dt)
+        last = self._last_filed.get(robot)
+        if last is not None and last[1] == stamp_ns:
+            return [last]
+        previous_step, this_step = sampler.push(stamp_ns)
+        out = []
+        if previous_step is not None:  # the previous pose is the newest at or before that step
+            stamp, p, q = self._previous[robot]
+            out.append((previous_step, stamp, self._map(robot, p, q)))
+        self._previous[robot] = (stamp_ns, position, quaternion)
+        if self.estimates:
+            estimator = self.estimators.get(robot)
+            if estimator is None:
+                estimator = self.estimators[robot] = VelocityEstimator(self.window)
+            estimator.push(stamp_ns, position[: self.spec.position_dim])
+        if this_step is not None:
+            out.append((this_step, stamp_ns, self._map(robot, position, quaternion)))
+        if out:
+            self._last_filed[robot] = out[-1]
+        return out
+
+    def _map(self, robot: int, position, quaternion) -> np.ndarray:
+        """The state of a pose and the estimate at the newest sample fed (the filed pose's)."""
+        z = fields_to_state(position, quaternion, _NO_TWIST, self.spec, 'world')
+        if self.estimates:
+            z[self.spec.velocity] = self.estimators[robot].velocity
         return z
 
     def velocity(self, robot: int) -> Optional[np.ndarray]:

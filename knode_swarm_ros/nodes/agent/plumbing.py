@@ -7,7 +7,7 @@ and the control timers of a mode.
 from __future__ import annotations
 
 from functools import partial
-from typing import Callable, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -109,11 +109,11 @@ class StateDecoder:
     shared by the robots of a process: they hear the same poses).
     """
 
-    def __init__(self, fleet: Fleet, spec, twist_frame: str):
+    def __init__(self, fleet: Fleet, spec, twist_frame: str, dt: Optional[float] = None):
         self.fleet = fleet
         self.spec = spec
         self.twist_frame = twist_frame
-        self.poses = PoseStates(spec, fleet.state.velocity_window) if fleet.state.type == 'pose' else None
+        self.poses = PoseStates(spec, fleet.state.velocity_window, dt) if fleet.state.type == 'pose' else None
 
     def subscribe(self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None]) -> list:
         """One raw subscription per robot's state topic: ``on_state(j, bytes)`` (decoded by
@@ -141,6 +141,28 @@ class StateDecoder:
         except CdrError as exc:
             raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
         return (topic_robot if self.fleet.owns_frame(frame, topic_robot) else None), stamp, frame, z
+
+    def filed(
+        self, topic_robot: int, data: bytes
+    ) -> List[Tuple[Optional[int], int, str, np.ndarray, Optional[int]]]:
+        """What to file of raw bytes heard on robot ``topic_robot``'s state topic:
+        ``[(robot, stamp_ns, frame, z [d], step)]``. Odometry: the one state (step None: the
+        stamp's nearest). Poses: the states that stand for a step
+        (:meth:`.PoseStates.filed`; none for most poses of a stream faster than the policy).
+
+        Raises:
+            CdrError: undecodable bytes; the message names the topic.
+        """
+        if self.poses is None:
+            return [(*self.decode(topic_robot, data), None)]
+        try:
+            stamp, frame, pose = pose_from_cdr(data)
+        except CdrError as exc:
+            raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
+        return [
+            (topic_robot, filed_stamp, frame, z, step)
+            for step, filed_stamp, z in self.poses.filed(topic_robot, stamp, pose[:3], pose[3:])
+        ]
 
 
 def control_timers(
