@@ -64,7 +64,7 @@ _EXPLAIN = {
 }
 
 #: While a tick waits for its neighbours' states in the inbox: how often it is taken (wall s).
-INBOX_POLL_S = 0.002
+INBOX_POLL_S = 0.005
 
 #: How long after the first robot is heard a robot never heard is named (s).
 MISSING_AFTER_S = 5.0
@@ -156,14 +156,14 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.status_pub = self.create_publisher(String, fleet.status_topic(robot_id), qos.STATUS)
         # A realtime pose stream (motion capture, faster than the policy): the neighbours' poses
         # are taken when the agent wakes anyway (its own pose, its timers), not one by one.
-        inboxed = (
-            [i for i in ids if i != robot_id] if fleet.state.type == 'pose' and mode == 'realtime' else []
+        poses_in_realtime = fleet.state.type == 'pose' and mode == 'realtime'
+        inboxed = [i for i in ids if i != robot_id] if poses_in_realtime else []
+        stream = qos.POSE_STREAM if poses_in_realtime else qos.ODOM
+        self.odom_subs = self.states.subscribe(
+            self, [i for i in ids if i not in inboxed], self._on_odom, stream
         )
-        self.odom_subs = self.states.subscribe(self, [i for i in ids if i not in inboxed], self._on_odom)
         self.inbox = (
-            StateInbox(self, STATE_MESSAGES['pose'], inboxed, fleet.state_topic, qos.ODOM)
-            if inboxed
-            else None
+            StateInbox(self, STATE_MESSAGES['pose'], inboxed, fleet.state_topic, stream) if inboxed else None
         )
         self._missing_since = None  # when the swarm was first heard (monotonic s)
         self.on_state = (

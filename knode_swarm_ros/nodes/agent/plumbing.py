@@ -115,13 +115,15 @@ class StateDecoder:
         self.twist_frame = twist_frame
         self.poses = PoseStates(spec, fleet.state.velocity_window, dt) if fleet.state.type == 'pose' else None
 
-    def subscribe(self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None]) -> list:
+    def subscribe(
+        self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None], qos_profile=qos.ODOM
+    ) -> list:
         """One raw subscription per robot's state topic: ``on_state(j, bytes)`` (decoded by
         :meth:`decode`, 3x cheaper than rclpy's message objects)."""
         msg_type = STATE_MESSAGES[self.fleet.state.type]
         return [
             node.create_subscription(
-                msg_type, self.fleet.state_topic(rid), partial(on_state, rid), qos.ODOM, raw=True
+                msg_type, self.fleet.state_topic(rid), partial(on_state, rid), qos_profile, raw=True
             )
             for rid in ids
         ]
