@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from knode_swarm_ros.core.estimator import (
+    CommandAidedEstimator,
     StepSampler,
     VelocityEstimator,
     fit_weights,
@@ -203,3 +204,66 @@ def test_the_fit_is_made_when_read_and_equals_a_fit_at_every_sample():
         if j % 5 == 0:
             assert np.array_equal(lazy.velocity, v)
     assert np.array_equal(lazy.velocity, v)
+
+
+# --- a robot's own velocity: its poses and its commands ------------------------------------------
+def _double_integrator(commands, switch_every, v0, h=0.01):
+    """Positions at every h of a robot executing ``commands[j // switch_every]`` (held)."""
+    p, v, out = np.zeros(2), np.array(v0, dtype=float), []
+    for j in range(len(commands) * switch_every):
+        out.append((p.copy(), v.copy()))
+        u = commands[j // switch_every]
+        p, v = p + v * h + 0.5 * u * h * h, v + u * h
+    return out
+
+
+def test_command_aided_velocity_is_exact_for_a_robot_executing_its_commands():
+    rng = np.random.default_rng(7)
+    commands = rng.normal(0, 2.0, (40, 2))
+    est, plain = CommandAidedEstimator(50), VelocityEstimator(10)
+    for j, (p, v) in enumerate(_double_integrator(commands, 5, [0.3, -0.1])):
+        if j % 5 == 0:
+            est.command(j * H_NS, commands[j // 5])
+        est.push(j * H_NS, p)
+        plain.push(j * H_NS, p)
+        if j >= 1:
+            np.testing.assert_allclose(est.velocity, v, atol=1e-9)  # no lag, whatever the commands
+    assert np.max(np.abs(plain.velocity - v)) > 1e-3  # the plain fit lags behind them
+
+
+def test_command_aided_noise_is_the_long_windows_and_a_command_ahead_waits_for_its_stamp():
+    n, sigma = 50, 0.002
+    rng = np.random.default_rng(8)
+    est = CommandAidedEstimator(n)
+    est.command(0, np.zeros(2000))
+    noise = rng.normal(0, sigma, (400, 2000))
+    errors = []
+    for j in range(400):
+        est.push(j * H_NS, noise[j])
+        if j >= n:
+            errors.append(est.velocity.copy())
+    std = np.std(np.stack(errors)[::n])
+    assert abs(std / (sigma * noise_gain(n, 0.01)) - 1) < 0.05
+    # a stop command stamped ahead of the newest pose acts from its stamp, not before
+    ahead = CommandAidedEstimator(5)
+    ahead.command(0, [0.0])
+    ahead.push(0, [0.0])
+    ahead.command(2 * H_NS, [1.0])
+    ahead.push(H_NS, [0.0])
+    assert ahead.velocity[0] == 0.0
+    ahead.push(3 * H_NS, [0.5 * 0.01**2])  # one period under u = 1 since 20 ms
+    assert ahead.velocity[0] == pytest.approx(0.01, abs=1e-9)
+
+
+def test_command_aided_estimates_of_all_robots_at_once_equal_one_at_a_time():
+    rng = np.random.default_rng(9)
+    p, u = rng.normal(size=(20, 4, 2)), rng.normal(size=(20, 4, 2))
+    batched = CommandAidedEstimator(6)
+    alone = [CommandAidedEstimator(6) for _ in range(4)]
+    for t in range(20):
+        batched.push(t * 50_000_000, p[t])
+        for i, est in enumerate(alone):
+            est.push(t * 50_000_000, p[t, i])
+            assert np.array_equal(est.velocity, batched.velocity[i])
+            est.command(t * 50_000_000, u[t, i])
+        batched.command(t * 50_000_000, u[t])

@@ -98,7 +98,7 @@ def test_poses_faster_than_the_policy_file_the_newest_at_or_before_each_step(off
         ns = offset_ns + j * 10_000_000
         pose = ((*rng.normal(size=2), 0.0), (0.0, 0.0, 0.0, 1.0))
         heard.append((ns, every.state(1, ns, *pose)))
-        for step, stamp, mine in filed.filed(1, ns, *pose):
+        for step, stamp, mine, _own in filed.filed(1, ns, *pose):
             got[step] = (stamp, mine)
     assert sorted(got) == list(range(1 if offset_ns else 0, 12))
     for step, (stamp, mine) in got.items():
@@ -109,10 +109,10 @@ def test_poses_faster_than_the_policy_file_the_newest_at_or_before_each_step(off
 def test_a_repeated_pose_files_its_state_again_and_a_non_finite_one_is_handed_back_unfiled():
     poses = PoseStates('flock2d', 3, DT)
     first = poses.filed(0, 0, (0.0, 0.0, 0.0), (0, 0, 0, 1))
-    assert [(s, ns) for s, ns, _ in first] == [(0, 0)]
+    assert [(s, ns, own) for s, ns, _, own in first] == [(0, 0, None)]
     again = poses.filed(0, 0, (0.0, 0.0, 0.0), (0, 0, 0, 1))  # the simulator re-publishes step 0
     assert again[0][0] == 0 and np.array_equal(again[0][2], first[0][2])
-    ((step, ns, z),) = poses.filed(0, 10_000_000, (np.nan, 0.0, 0.0), (0, 0, 0, 1))
+    ((step, ns, z, _own),) = poses.filed(0, 10_000_000, (np.nan, 0.0, 0.0), (0, 0, 0, 1))
     assert step is None and np.isnan(z[0])
     assert poses.filed(0, 20_000_000, (0.02, 0.0, 0.0), (0, 0, 0, 1)) == []
 

@@ -205,6 +205,7 @@ class AgentLogic:
             raise ValueError(f'robot {self.me}: a shared hearing must have the same settings')
         self.hearing = hearing if hearing is not None else own_hearing
         self.stamps: Dict[Tuple[int, int], int] = {}  # (robot, step) -> exact stamp (own robot only)
+        self._own_rows: Dict[int, np.ndarray] = {}  # step -> own row of Y, when not the filed state
         self.counters = Counters(
             self.hearing.counters,
             {
@@ -523,8 +524,17 @@ class AgentLogic:
         """The policy's command ``[m]`` for one ``Y [k, d]``, ``mask [k]`` (before the agent's clip)."""
         return evaluate_batch(self.policy, Y[None], mask[None], [self.me], self.parity_index)[0]
 
+    def own_row(self, step: int, z) -> None:
+        """The own row of Y for ``step`` when it is not the state filed for the others (a pose
+        fleet's command-aided own velocity, :class:`knode_swarm_ros.logic.contract.pose.PoseStates`)."""
+        step = int(step)
+        self._own_rows[step] = np.asarray(z, dtype=np.float64)
+        if len(self._own_rows) > 4 * self.buffer.horizon:
+            for s in [s for s in self._own_rows if s < step - self.buffer.horizon]:
+                del self._own_rows[s]
+
     def _request(self, step: int, stamp: int, own: np.ndarray, rows: Rows) -> Request:
-        return Request(int(step), int(stamp), self.me, own, rows)
+        return Request(int(step), int(stamp), self.me, self._own_rows.get(int(step), own), rows)
 
     def _now(self, item):
         """A :class:`Request` built, evaluated alone and finished; anything else as it is."""

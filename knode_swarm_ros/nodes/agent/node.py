@@ -113,7 +113,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.spec = self.logic.spec
         fleet.check_scenario(self.spec.command, self.spec.velocity is not None)
         self.fleet = fleet
-        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt)
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt, own=[robot_id])
         self._own_z = None  # the newest own state heard (a velocity setpoint starts from its velocity)
         self.setpoint = (
             SetpointOutput(
@@ -224,13 +224,15 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.logic.malformed()
             self._note_drop('malformed', str(exc))
             return
-        for robot, stamp, frame, z, step in filed:
+        for robot, stamp, frame, z, step, own in filed:
             if (
                 self.unicycle.enabled and robot is not None
             ):  # the policy sees the point ahead (unicycle_state)
                 z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
             if robot == self.logic.me and np.all(np.isfinite(z)):
-                self._own_z = z
+                self._own_z = z if own is None else own
+                if own is not None and step is not None:
+                    self.logic.own_row(step, own)
             if not self._through_link(robot, stamp, z, now):
                 continue  # states the link released may complete a waiting tick: polled after
             outcome = self.logic.receive(robot, stamp, z, now, time.monotonic(), step=step)
@@ -329,6 +331,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
             return
         value = cmd.value
+        self.states.command(self.logic.me, cmd.stamp_ns, value)  # the own velocity knows it
         if self.setpoint is not None:  # a velocity loop: v_sp = v_est + u T
             value = self.setpoint.value(cmd, self._own_z[self.spec.velocity])
         # serialized directly (AccelStamped and TwistStamped share one layout)

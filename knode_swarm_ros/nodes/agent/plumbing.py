@@ -7,7 +7,7 @@ and the control timers of a mode.
 from __future__ import annotations
 
 from functools import partial
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -109,11 +109,20 @@ class StateDecoder:
     shared by the robots of a process: they hear the same poses).
     """
 
-    def __init__(self, fleet: Fleet, spec, twist_frame: str, dt: Optional[float] = None):
+    def __init__(
+        self, fleet: Fleet, spec, twist_frame: str, dt: Optional[float] = None, own: Sequence[int] = ()
+    ):
         self.fleet = fleet
         self.spec = spec
         self.twist_frame = twist_frame
-        self.poses = PoseStates(spec, fleet.state.velocity_window, dt) if fleet.state.type == 'pose' else None
+        self.poses = (
+            PoseStates(spec, fleet.state.velocity_window, dt, own) if fleet.state.type == 'pose' else None
+        )
+
+    def command(self, robot: int, stamp_ns: int, u) -> None:
+        """Own robot ``robot`` commanded ``u`` from ``stamp_ns``: its command-aided velocity."""
+        if self.poses is not None:
+            self.poses.command(robot, stamp_ns, u)
 
     def subscribe(
         self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None], qos_profile=qos.ODOM
@@ -144,26 +153,25 @@ class StateDecoder:
             raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
         return (topic_robot if self.fleet.owns_frame(frame, topic_robot) else None), stamp, frame, z
 
-    def filed(
-        self, topic_robot: int, data: bytes
-    ) -> List[Tuple[Optional[int], int, str, np.ndarray, Optional[int]]]:
+    def filed(self, topic_robot: int, data: bytes) -> list:
         """What to file of raw bytes heard on robot ``topic_robot``'s state topic:
-        ``[(robot, stamp_ns, frame, z [d], step)]``. Odometry: the one state (step None: the
-        stamp's nearest). Poses: the states that stand for a step
-        (:meth:`.PoseStates.filed`; none for most poses of a stream faster than the policy).
+        ``[(robot, stamp_ns, frame, z [d], step, own)]``. Odometry: the one state (step None:
+        the stamp's nearest; own None). Poses: the states that stand for a step
+        (:meth:`.PoseStates.filed`; none for most poses of a stream faster than the policy),
+        ``own`` an own robot's command-aided state (its own row of Y) or None.
 
         Raises:
             CdrError: undecodable bytes; the message names the topic.
         """
         if self.poses is None:
-            return [(*self.decode(topic_robot, data), None)]
+            return [(*self.decode(topic_robot, data), None, None)]
         try:
             stamp, frame, pose = pose_from_cdr(data)
         except CdrError as exc:
             raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
         return [
-            (topic_robot, filed_stamp, frame, z, step)
-            for step, filed_stamp, z in self.poses.filed(topic_robot, stamp, pose[:3], pose[3:])
+            (topic_robot, filed_stamp, frame, z, step, own)
+            for step, filed_stamp, z, own in self.poses.filed(topic_robot, stamp, pose[:3], pose[3:])
         ]
 
 

@@ -135,7 +135,7 @@ class AgentsNode(Node):
                 f'the fleet {fleet.path} commands {fleet.command.interface} ({fleet.command.type}): a real '
                 "robot's output, not offered by the agents node; run one agent per robot"
             )
-        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt)
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt, own=hosted)
         msg_type = COMMAND_MESSAGES[fleet.command_type(self.spec.command)]
         self.cmd_pubs = {
             rid: self.create_publisher(msg_type, fleet.command_topic(rid, self.spec.command), qos.COMMAND)
@@ -180,7 +180,9 @@ class AgentsNode(Node):
             self._note_drop('malformed', str(exc))
             return
         now = self.get_clock().now().nanoseconds
-        for robot, stamp, _frame, z, step in filed:
+        for robot, stamp, _frame, z, step, own in filed:
+            if own is not None and step is not None and robot in self.hosted.logics:
+                self.hosted.logics[robot].own_row(step, own)
             outcome = self.hosted.receive(robot, stamp, z, now, time.monotonic(), step=step)
             if outcome in self._drops:
                 self._note_drop(outcome, f'robot {topic_robot} at {stamp * 1e-9:.3f} s')
@@ -195,6 +197,7 @@ class AgentsNode(Node):
 
     def _publish(self, commands) -> None:
         for rid, cmd in commands:
+            self.states.command(rid, cmd.stamp_ns, cmd.value)  # the own velocity knows it
             self.cmd_pubs[rid].publish(
                 command_to_cdr(cmd.stamp_ns, cmd.value, self.spec)
             )  # bytes: no msg objects
