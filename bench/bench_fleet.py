@@ -88,18 +88,32 @@ def run_swarm(tmp: Path, name: str, seed: int, args, fleet=None) -> dict:
     ]  # fmt: skip
     if fleet is not None:
         cmd += ['--fleet', str(fleet), '--pose-noise', str(args.noise), '--pose-rate', str(args.pose_rate)]
+    load_before = os.getloadavg()[0]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
     if proc.returncode != 0:
         return {'seed': seed, 'error': proc.returncode, 'tail': (proc.stdout + proc.stderr)[-600:]}
     data = load_trajectories(record)
     p = data.states[0][..., data.spec.position]  # [T, n, 2]
-    true = np.array(json.loads((logs / 'simulator.json').read_text())['states'])
+    report = json.loads((logs / 'simulator.json').read_text())
+    true = np.array(report['states'])
     final_avd = float(avd(true[:, data.spec.velocity]))
     after = int(round(1.0 / data.dt))
     gaps = np.linalg.norm(p[after:, :, None] - p[after:, None], axis=-1)
     n = p.shape[1]
     gaps[:, np.arange(n), np.arange(n)] = np.inf
-    return {'seed': seed, 'final_avd': final_avd, 'min_pair_distance': float(gaps.min())}
+    return {
+        'seed': seed,
+        'final_avd': final_avd,
+        'min_pair_distance': float(gaps.min()),
+        # how the run went: state-to-command latency, sub-steps the simulator had to drop
+        # (overruns: it was descheduled) and robot-sub-steps without a fresh command (zeroed)
+        'latency_ms_p50': report['latency_ms']['p50'],
+        'latency_ms_p99': report['latency_ms']['p99'],
+        'overruns': report['overruns'],
+        'zeroed': report['counters']['zeroed'],
+        'load_before': load_before,
+        'load_after': os.getloadavg()[0],
+    }
 
 
 def main(argv=None):
@@ -127,6 +141,8 @@ def main(argv=None):
         'load_average': os.getloadavg(),
         'estimator': estimator_figures(DEFAULT_WINDOW, 100.0, 0.002, args.streams),
     }
+    if args.window and args.window != DEFAULT_WINDOW:
+        out['estimator_window'] = estimator_figures(args.window, 100.0, 0.002, args.streams)
     if not args.no_swarm:
         with tempfile.TemporaryDirectory(prefix='bench_fleet_') as tmp:
             tmp = Path(tmp)
@@ -171,7 +187,12 @@ def main(argv=None):
             'min_pair_distance_after_1s_odometry': min(
                 (r['odometry']['min_pair_distance'] for r in ok), default=None
             ),
+            'median_final_avd_odometry': float(np.median(odom)) if ok else None,
+            'median_final_avd_pose': float(np.median(pose)) if ok else None,
+            'starts_within_30_percent': int(np.sum(pose <= 1.3 * odom)) if ok else 0,
+            'starts_pose_pair_closer_than_0.3': sum(r['pose']['min_pair_distance'] < 0.3 for r in ok),
             'load_average_after': os.getloadavg(),
+            'command': ' '.join([Path(sys.executable).name, *sys.argv]),
             'runs': runs,
         }
         out['swarm']['load_average_after'] = os.getloadavg()

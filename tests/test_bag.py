@@ -429,7 +429,7 @@ def test_project_bags_read_back_by_rosbags_message_for_message_with_their_qos(tm
 def test_project_qos_table_is_what_the_nodes_use():
     """The bag's QoS comes from nodes.qos_specs, which is also where the nodes' rclpy profiles come from."""
     qos = __import__('importlib').import_module('knode_swarm_ros.nodes.common.qos')
-    for name in ('ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS'):
+    for name in ('ODOM', 'POSE_STREAM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS'):
         spec, prof = getattr(qos_specs, name), getattr(qos, name)
         assert (prof.history.name, prof.depth, prof.reliability.name, prof.durability.name) == (
             'KEEP_LAST',

@@ -5,7 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from knode_swarm_ros.core.estimator import VelocityEstimator, fit_weights, lag_s, noise_gain
+from knode_swarm_ros.core.estimator import (
+    CommandAidedEstimator,
+    StepSampler,
+    VelocityEstimator,
+    fit_weights,
+    lag_s,
+    noise_gain,
+    step_at_or_before,
+)
 from knode_swarm_ros.core.rollout import PoseObserver, rollout
 from knode_swarm_ros.core.saturation import velocity_setpoint
 from knode_swarm_ros.core.scenarios import get_scenario
@@ -140,3 +148,122 @@ def test_import_option_gives_the_agents_estimates_on_the_grid():
     ):
         with pytest.raises(TrackError, match='--velocity-estimator'):
             check_resample_options(bad)
+
+
+# --- which sample stands for a step (StepSampler) ------------------------------------------------
+def test_step_at_or_before_on_and_between_steps():
+    dt = 0.05
+    assert [step_at_or_before(ns, dt) for ns in (0, 1, 49_999_999, 50_000_000, 50_000_001)] == [0, 0, 0, 1, 1]
+    assert step_at_or_before(-1, dt) == -1
+    # a dt whose steps are not whole nanoseconds: the grid is round(s dt 1e9), as the nodes stamp
+    dt = 1 / 30
+    for s in range(200):
+        ns = int(round(s * dt * 1e9))
+        assert step_at_or_before(ns, dt) == s and step_at_or_before(ns - 1, dt) == s - 1
+
+
+def test_a_stream_on_the_grid_files_each_step_sample_at_once():
+    sampler = StepSampler(0.05)
+    got = [sampler.push(j * H_NS) for j in range(16)]  # 100 Hz under a 20 Hz policy
+    assert got == [(None, j // 5) if j % 5 == 0 else (None, None) for j in range(16)]
+
+
+def test_a_stream_off_the_grid_files_the_newest_sample_before_each_step_when_the_next_one_comes():
+    sampler = StepSampler(0.05)
+    stamps = [3_000_000 + j * H_NS for j in range(12)]  # 3 ms after the grid of 10 ms
+    got = [sampler.push(ns) for ns in stamps]
+    # 43 ms is the newest at or before 50 ms: known at 53 ms; 93 ms for 100 ms, at 103 ms
+    assert got[5] == (1, None) and got[10] == (2, None)
+    assert all(g == (None, None) for j, g in enumerate(got) if j not in (5, 10))
+
+
+def test_a_gap_names_only_the_newest_step_passed_and_late_samples_are_forgotten():
+    sampler = StepSampler(0.05)
+    assert sampler.push(43_000_000) == (None, None)
+    assert sampler.push(200_000_000) == (3, 4)  # 43 ms stands for steps 1..3 (3 named), 200 ms is step 4
+    assert sampler.push(150_000_000) == (None, None)  # older: forgotten
+    assert sampler.push(200_000_000) == (None, None)  # repeated
+    assert sampler.push(249_000_000) == (None, None)
+    assert sampler.push(250_000_000) == (None, 5)  # on the step: the sample before stands for none
+
+
+def test_pose_observed_rollout_observes_on_the_grid_so_every_observation_stands_for_its_step():
+    # core.rollout observes at round(t dt 1e9): the rule picks every observation at once, so the
+    # offline rollout and the agents (which apply it) file the same samples.
+    sampler = StepSampler(0.05)
+    assert [sampler.push(int(round(t * 0.05 * 1e9))) for t in range(50)] == [(None, t) for t in range(50)]
+
+
+def test_the_fit_is_made_when_read_and_equals_a_fit_at_every_sample():
+    rng = np.random.default_rng(5)
+    p = rng.normal(size=(30, 3, 2))
+    lazy, eager = VelocityEstimator(6), VelocityEstimator(6)
+    for j in range(30):
+        v = eager.update(j * H_NS, p[j])
+        lazy.push(j * H_NS, p[j])
+        if j % 5 == 0:
+            assert np.array_equal(lazy.velocity, v)
+    assert np.array_equal(lazy.velocity, v)
+
+
+# --- a robot's own velocity: its poses and its commands ------------------------------------------
+def _double_integrator(commands, switch_every, v0, h=0.01):
+    """Positions at every h of a robot executing ``commands[j // switch_every]`` (held)."""
+    p, v, out = np.zeros(2), np.array(v0, dtype=float), []
+    for j in range(len(commands) * switch_every):
+        out.append((p.copy(), v.copy()))
+        u = commands[j // switch_every]
+        p, v = p + v * h + 0.5 * u * h * h, v + u * h
+    return out
+
+
+def test_command_aided_velocity_is_exact_for_a_robot_executing_its_commands():
+    rng = np.random.default_rng(7)
+    commands = rng.normal(0, 2.0, (40, 2))
+    est, plain = CommandAidedEstimator(50), VelocityEstimator(10)
+    for j, (p, v) in enumerate(_double_integrator(commands, 5, [0.3, -0.1])):
+        if j % 5 == 0:
+            est.command(j * H_NS, commands[j // 5])
+        est.push(j * H_NS, p)
+        plain.push(j * H_NS, p)
+        if j >= 1:
+            np.testing.assert_allclose(est.velocity, v, atol=1e-9)  # no lag, whatever the commands
+    assert np.max(np.abs(plain.velocity - v)) > 1e-3  # the plain fit lags behind them
+
+
+def test_command_aided_noise_is_the_long_windows_and_a_command_ahead_waits_for_its_stamp():
+    n, sigma = 50, 0.002
+    rng = np.random.default_rng(8)
+    est = CommandAidedEstimator(n)
+    est.command(0, np.zeros(2000))
+    noise = rng.normal(0, sigma, (400, 2000))
+    errors = []
+    for j in range(400):
+        est.push(j * H_NS, noise[j])
+        if j >= n:
+            errors.append(est.velocity.copy())
+    std = np.std(np.stack(errors)[::n])
+    assert abs(std / (sigma * noise_gain(n, 0.01)) - 1) < 0.05
+    # a stop command stamped ahead of the newest pose acts from its stamp, not before
+    ahead = CommandAidedEstimator(5)
+    ahead.command(0, [0.0])
+    ahead.push(0, [0.0])
+    ahead.command(2 * H_NS, [1.0])
+    ahead.push(H_NS, [0.0])
+    assert ahead.velocity[0] == 0.0
+    ahead.push(3 * H_NS, [0.5 * 0.01**2])  # one period under u = 1 since 20 ms
+    assert ahead.velocity[0] == pytest.approx(0.01, abs=1e-9)
+
+
+def test_command_aided_estimates_of_all_robots_at_once_equal_one_at_a_time():
+    rng = np.random.default_rng(9)
+    p, u = rng.normal(size=(20, 4, 2)), rng.normal(size=(20, 4, 2))
+    batched = CommandAidedEstimator(6)
+    alone = [CommandAidedEstimator(6) for _ in range(4)]
+    for t in range(20):
+        batched.push(t * 50_000_000, p[t])
+        for i, est in enumerate(alone):
+            est.push(t * 50_000_000, p[t, i])
+            assert np.array_equal(est.velocity, batched.velocity[i])
+            est.command(t * 50_000_000, u[t, i])
+        batched.command(t * 50_000_000, u[t])

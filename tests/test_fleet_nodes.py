@@ -87,6 +87,36 @@ def test_a_non_finite_pose_is_mapped_but_not_fed_to_the_estimator():
     assert z[2] == pytest.approx(2.0) and np.all(np.isfinite(z))  # the NaN sample is not in the fit
 
 
+@pytest.mark.parametrize('offset_ns', [0, 3_000_000])
+def test_poses_faster_than_the_policy_file_the_newest_at_or_before_each_step(offset_ns):
+    # 100 Hz poses under a 20 Hz policy, on the grid and 3 ms off it: each step gets the newest
+    # pose at or before its time, with the estimate every pose before it gives (bit for bit)
+    rng = np.random.default_rng(6)
+    every, filed = PoseStates('flock2d', 10), PoseStates('flock2d', 10, DT)
+    heard, got = [], {}
+    for j in range(60):
+        ns = offset_ns + j * 10_000_000
+        pose = ((*rng.normal(size=2), 0.0), (0.0, 0.0, 0.0, 1.0))
+        heard.append((ns, every.state(1, ns, *pose)))
+        for step, stamp, mine, _own in filed.filed(1, ns, *pose):
+            got[step] = (stamp, mine)
+    assert sorted(got) == list(range(1 if offset_ns else 0, 12))
+    for step, (stamp, mine) in got.items():
+        want_ns, want = [(ns, z) for ns, z in heard if ns <= stamp_ns(step, DT)][-1]
+        assert stamp == want_ns and np.array_equal(mine, want)
+
+
+def test_a_repeated_pose_files_its_state_again_and_a_non_finite_one_is_handed_back_unfiled():
+    poses = PoseStates('flock2d', 3, DT)
+    first = poses.filed(0, 0, (0.0, 0.0, 0.0), (0, 0, 0, 1))
+    assert [(s, ns, own) for s, ns, _, own in first] == [(0, 0, None)]
+    again = poses.filed(0, 0, (0.0, 0.0, 0.0), (0, 0, 0, 1))  # the simulator re-publishes step 0
+    assert again[0][0] == 0 and np.array_equal(again[0][2], first[0][2])
+    ((step, ns, z, _own),) = poses.filed(0, 10_000_000, (np.nan, 0.0, 0.0), (0, 0, 0, 1))
+    assert step is None and np.isnan(z[0])
+    assert poses.filed(0, 20_000_000, (0.02, 0.0, 0.0), (0, 0, 0, 1)) == []
+
+
 def test_a_state_without_velocity_is_the_pose_itself():
     poses = PoseStates('boids3d')
     z = poses.state(0, 0, (1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0))

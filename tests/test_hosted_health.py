@@ -120,6 +120,13 @@ def test_hosted_robots_report_in_one_array_what_their_lone_agents_report():
     assert ages == ['0.000', '0.010']  # robot 3's own state of step 1 is one step old
     assert levels == {1: WARN, 3: WARN}  # a second later both own states are stale
     assert all('stale' in e[3] for e in _entries(node_h.sent[1]))
+    # a named fleet's robots report under their names (the monitor maps them back to ids)
+    named = HostedHealth(_Node(), hosted, 0.5, None, {1: 'cf1', 3: 'tb4_3'}.get)
+    named.publish(reports, now, 14.0)
+    assert [(e[1], e[2]) for e in _entries(named.node.sent[0])] == [
+        ('knode_swarm agent cf1', 'cf1'),
+        ('knode_swarm agent tb4_3', 'tb4_3'),
+    ]
 
 
 def test_serialized_diagnostics_equal_rclpys():

@@ -341,3 +341,20 @@ def test_grace_arm_resets_only_when_a_wait_starts_and_cancels_when_it_ends():
         arm.set(waiting)
     # cancelled at creation; a wait that goes on does not restart the grace
     assert t.calls == ['cancel', 'reset', 'cancel', 'reset'] and arm.armed
+
+
+def test_a_tick_whose_own_state_went_stale_while_waiting_gives_no_command():
+    # A process fallen behind its messages: the own state of the pending tick is older than
+    # state_timeout by the time the grace passes, so no row of its own is live; the tick is
+    # dropped (the watchdog stops the robot) instead of building Y without its own row.
+    logic = logic_for(SumPolicy(), state_timeout=0.5)
+    for r in range(4):
+        logic.receive(r, stamp_ns(0, DT), frame(0)[r], 0, wall=0.0)
+    assert logic.realtime_poll(0, 0.0) is not None
+    ns = stamp_ns(1, DT)
+    logic.receive(0, ns, frame(1)[0], ns, wall=10.0)  # neighbours' states of step 1 never come
+    later = ns + SEC  # the clock moved on by a second before the process got to the grace
+    assert logic.realtime_poll(later, 10.0 + logic.ticks.grace_s) is None
+    assert logic.counters['commands'] == 1
+    stop = logic.watchdog(later)
+    assert stop is not None and stop.stop

@@ -104,6 +104,18 @@ def test_the_monitor_reads_a_fleets_poses_and_estimates_their_velocities(ros, tm
         )
 
     assert ros.spin_until(estimated, each=publish)
+    # the agents' health names the fleet's robots (hardware_id), mapped back to their ids
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    monitor._on_diagnostics(
+        DiagnosticArray(
+            status=[
+                DiagnosticStatus(level=b'\x01', hardware_id='cf5'),
+                DiagnosticStatus(level=b'\x02', hardware_id='cf7'),
+            ]
+        )
+    )
+    assert monitor.watch.levels == [None, 1]  # cf231 (id 4) untouched, cf5 (id 9) WARN, cf7 unknown
 
 
 def test_the_unicycle_output_takes_the_fleets_topic_frame_and_type(ros, tmp_path, untrained_policies):

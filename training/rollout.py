@@ -14,7 +14,8 @@ link model: loss, delay and jitter in steps, radio range; seeded; its counters g
 ``torchscript``, the reference; ``onnxruntime`` rolls the ONNX twin out, as robots run it).
 ``--observe pose`` makes the robots hear poses only, as a motion-capture fleet does: every
 velocity in what they hear is estimated by the agents' estimator (:mod:`knode_swarm_ros.core.estimator`,
-``--velocity-window`` samples); the states written are the true ones.
+``--velocity-window`` samples; a robot's own velocity also from its own commands, as the agents'
+own row); the states written are the true ones.
 """
 
 from __future__ import annotations

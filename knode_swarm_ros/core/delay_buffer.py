@@ -40,9 +40,10 @@ class DelayBuffer:
         """Step index of a stamp in seconds."""
         return int(round(stamp / self.dt))
 
-    def add(self, robot: int, stamp: float, state) -> bool:
-        """File ``state [d]`` of ``robot`` at ``stamp``; a repeated step keeps the first (returns False)."""
-        step = self.step_of(stamp)
+    def add(self, robot: int, stamp: float, state, step: Optional[int] = None) -> bool:
+        """File ``state [d]`` of ``robot`` at ``stamp`` under ``step`` (default: the stamp's
+        nearest, :meth:`step_of`); a repeated step keeps the first (returns False)."""
+        step = self.step_of(stamp) if step is None else int(step)
         steps = self._steps.setdefault(robot, [])
         states = self._states.setdefault(robot, {})
         if step in states:

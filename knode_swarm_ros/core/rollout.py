@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping, Optional, Union
 
 import numpy as np
 
-from .estimator import DEFAULT_WINDOW, VelocityEstimator
+from .estimator import DEFAULT_WINDOW, OWN_WINDOW_FACTOR, CommandAidedEstimator, VelocityEstimator
 from .network import neighbour_matrix, neighbour_matrix_torch
 from .saturation import saturate
 from .scenarios import Scenario, get_scenario
@@ -118,17 +118,36 @@ class PoseObserver:
     estimated from the positions heard so far; without a velocity the state is the pose itself.
 
     ``observe(stamp_ns, z [..., n, d])`` -> the heard states ``[..., n, d]`` (float64 copy).
+    ``own(heard)``: each robot's own row, its velocity from its poses and its own commands
+    (``command(stamp_ns, u [..., n, m])``, :class:`.estimator.CommandAidedEstimator`) when the
+    scenario commands accelerations, as an agent's own row; else ``heard`` itself.
     """
 
     def __init__(self, scenario: Scenario, window: int = DEFAULT_WINDOW):
         self.spec = scenario
         self.estimator = VelocityEstimator(window) if scenario.velocity is not None else None
+        aided = self.estimator is not None and scenario.command == 'acceleration'
+        self.aided = CommandAidedEstimator(OWN_WINDOW_FACTOR * int(window)) if aided else None
 
     def observe(self, stamp_ns: int, z: np.ndarray) -> np.ndarray:
         heard = np.array(z, dtype=np.float64, copy=True)
         if self.estimator is not None:
-            heard[..., self.spec.velocity] = self.estimator.update(stamp_ns, heard[..., self.spec.position])
+            p = heard[..., self.spec.position]
+            heard[..., self.spec.velocity] = self.estimator.update(stamp_ns, p)
+            if self.aided is not None:
+                self.aided.push(stamp_ns, p)
         return heard
+
+    def own(self, heard: np.ndarray) -> np.ndarray:
+        if self.aided is None:
+            return heard
+        own = np.array(heard, dtype=np.float64, copy=True)
+        own[..., self.spec.velocity] = self.aided.velocity
+        return own
+
+    def command(self, stamp_ns: int, u: np.ndarray) -> None:
+        if self.aided is not None:
+            self.aided.command(stamp_ns, u)
 
 
 def rollout(
@@ -183,10 +202,15 @@ def rollout(
         observer = PoseObserver(spec, velocity_window)
         heard = np.empty_like(out)
     for t in range(steps):
+        stamp = int(round(t * float(dt) * 1e9))
+        own = heard[:, t]
         if observe == 'pose':
-            heard[:, t] = observer.observe(int(round(t * float(dt) * 1e9)), out[:, t])
+            heard[:, t] = observer.observe(stamp, out[:, t])
+            own = observer.own(heard[:, t])  # each robot's own row: its command-aided velocity
         z_delayed = heard[:, max(t - tau, 0)]
-        command = policy_commands(policy, heard[:, t], z_delayed, spec, d_cr, k, command_limit)
+        command = policy_commands(policy, own, z_delayed, spec, d_cr, k, command_limit)
+        if observe == 'pose':
+            observer.command(stamp, command)
         out[:, t + 1] = zoh_step(out[:, t], command, spec, dt)
         if progress is not None:
             progress(t)

@@ -205,6 +205,7 @@ class AgentLogic:
             raise ValueError(f'robot {self.me}: a shared hearing must have the same settings')
         self.hearing = hearing if hearing is not None else own_hearing
         self.stamps: Dict[Tuple[int, int], int] = {}  # (robot, step) -> exact stamp (own robot only)
+        self._own_rows: Dict[int, np.ndarray] = {}  # step -> own row of Y, when not the filed state
         self.counters = Counters(
             self.hearing.counters,
             {
@@ -268,15 +269,17 @@ class AgentLogic:
         now_ns: Optional[int] = None,
         wall: float = 0.0,
         verdict: Any = '',
+        step: Optional[int] = None,
     ) -> str:
         """File robot ``robot``'s state ``z [d]`` stamped ``stamp_ns``; returns ``accepted``,
         ``duplicate`` or the drop reason (see :data:`DROP_REASONS`).
 
         ``now_ns`` is the node's clock (None or <= 0 while it is unknown: no age checks);
         ``wall`` a monotonic time in seconds (lockstep waiting). ``verdict``: the result of
-        :meth:`check` on these arguments when the caller has it already.
+        :meth:`check` on these arguments when the caller has it already; ``step``: the step the
+        state stands for, when the caller chose it (default: the stamp's nearest).
         """
-        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, verdict)
+        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, verdict, step)
         if step is not None:
             self.react(int(robot), int(stamp_ns), step, outcome == 'accepted', wall)
         return outcome
@@ -467,10 +470,15 @@ class AgentLogic:
         own = self.buffer.get(self.me, s)
         if own is None:  # fell out of the buffer's horizon while waiting (never in practice): skip it
             return None
+        rows = self.hearing.delayed(s, now_ns)
+        if self.me not in rows.index:
+            # The own state went stale while the tick waited (a process fallen behind its
+            # messages): no command from it; the watchdog stops the robot.
+            return None
         if late:
             self.counters['late_ticks'] += 1
         self._stop_v = None
-        return self._request(s, stamp, own, self.hearing.delayed(s, now_ns))
+        return self._request(s, stamp, own, rows)
 
     def _stop(self, now_ns: int, own: np.ndarray, own_ns: int, period_ns: Optional[int]) -> Command:
         """The stop command of a stale own state (see the module doc)."""
@@ -516,8 +524,17 @@ class AgentLogic:
         """The policy's command ``[m]`` for one ``Y [k, d]``, ``mask [k]`` (before the agent's clip)."""
         return evaluate_batch(self.policy, Y[None], mask[None], [self.me], self.parity_index)[0]
 
+    def own_row(self, step: int, z) -> None:
+        """The own row of Y for ``step`` when it is not the state filed for the others (a pose
+        fleet's command-aided own velocity, :class:`knode_swarm_ros.logic.contract.pose.PoseStates`)."""
+        step = int(step)
+        self._own_rows[step] = np.asarray(z, dtype=np.float64)
+        if len(self._own_rows) > 4 * self.buffer.horizon:
+            for s in [s for s in self._own_rows if s < step - self.buffer.horizon]:
+                del self._own_rows[s]
+
     def _request(self, step: int, stamp: int, own: np.ndarray, rows: Rows) -> Request:
-        return Request(int(step), int(stamp), self.me, own, rows)
+        return Request(int(step), int(stamp), self.me, self._own_rows.get(int(step), own), rows)
 
     def _now(self, item):
         """A :class:`Request` built, evaluated alone and finished; anything else as it is."""

@@ -98,11 +98,19 @@ class Hearing:
         return None
 
     def file(
-        self, robot, stamp_ns: int, z, now_ns: Optional[int] = None, verdict: Any = ''
+        self,
+        robot,
+        stamp_ns: int,
+        z,
+        now_ns: Optional[int] = None,
+        verdict: Any = '',
+        step: Optional[int] = None,
     ) -> Tuple[str, Optional[int]]:
         """File robot ``robot``'s state ``z [d]``: ``(outcome, step)``, outcome ``accepted``,
         ``duplicate`` (a step already filed: the first copy wins) or a drop reason (step None).
-        ``verdict``: :meth:`check`'s result when the caller has it already."""
+        ``verdict``: :meth:`check`'s result when the caller has it already; ``step``: the step
+        it stands for when the caller chose it (a pose stream's :class:`StepSampler`), else the
+        stamp's nearest."""
         c = self.counters
         c['received'] += 1
         reason = self.check(robot, stamp_ns, z, now_ns) if verdict == '' else verdict
@@ -111,8 +119,8 @@ class Hearing:
             self.last_drop = (reason, -1 if robot is None else int(robot), int(stamp_ns))
             return reason, None
         robot = int(robot)
-        step = self.buffer.step_of(stamp_ns * 1e-9)
-        if not self.buffer.add(robot, stamp_ns * 1e-9, np.asarray(z, dtype=np.float64)):
+        step = self.buffer.step_of(stamp_ns * 1e-9) if step is None else int(step)
+        if not self.buffer.add(robot, stamp_ns * 1e-9, np.asarray(z, dtype=np.float64), step):
             c['duplicate'] += 1
             return 'duplicate', step
         c['accepted'] += 1

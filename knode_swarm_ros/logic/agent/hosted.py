@@ -143,11 +143,17 @@ class HostedAgents:
 
     # --- input: every state, filed once, to the hosted robots it concerns -------------------
     def receive(
-        self, robot: Optional[int], stamp_ns: int, z, now_ns: Optional[int] = None, wall: float = 0.0
+        self,
+        robot: Optional[int],
+        stamp_ns: int,
+        z,
+        now_ns: Optional[int] = None,
+        wall: float = 0.0,
+        step: Optional[int] = None,
     ) -> str:
         """File the state once for every hosted robot (see :meth:`AgentLogic.receive`); its
         owner (if hosted here) and the robots that left its sender out react to it."""
-        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns)
+        outcome, step = self.hearing.file(robot, stamp_ns, z, now_ns, step=step)
         if step is None:
             return outcome
         robot, accepted = int(robot), outcome == 'accepted'

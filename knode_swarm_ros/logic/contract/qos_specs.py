@@ -3,6 +3,11 @@ it and :mod:`knode_swarm_ros.bag` writes it into bags as the topics' ``offered_q
 
 * ``robot_<id>/odom``: :data:`ODOM`, reliable, volatile, keep last 200. Lockstep needs every
   state; 200 frames (2 s at 100 steps/s) absorb a subscriber descheduled for a while.
+* a realtime agent's subscriptions to a fleet's pose stream (motion capture, faster than the
+  policy): :data:`POSE_STREAM`, best effort, keep last 10 (100 ms at 100 Hz). Only recent poses
+  matter in real time: an agent descheduled for a while resumes at its newest poses instead of
+  working through a backlog (which kept reliable readers half a second behind their clock on
+  two loaded cores), and a lost pose is never waited for. A reliable publisher serves it.
 * ``robot_<id>/cmd_accel``, ``cmd_vel``: :data:`COMMAND`, reliable, volatile, keep last 20.
   Every command counts in lockstep; only the newest matters in real time.
 * ``/clock``: :data:`CLOCK`, best effort, keep last 1: what rclpy's time source subscribes
@@ -26,7 +31,18 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-__all__ = ['QosSpec', 'ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'DIAGNOSTICS']
+__all__ = [
+    'QosSpec',
+    'ODOM',
+    'POSE_STREAM',
+    'COMMAND',
+    'CLOCK',
+    'STATUS',
+    'PROGRESS',
+    'METRICS',
+    'MARKERS',
+    'DIAGNOSTICS',
+]
 
 
 class QosSpec(NamedTuple):
@@ -39,6 +55,7 @@ class QosSpec(NamedTuple):
 
 
 ODOM = QosSpec(200)
+POSE_STREAM = QosSpec(10, reliability='best_effort')
 COMMAND = QosSpec(20)
 CLOCK = QosSpec(1, reliability='best_effort')
 STATUS = QosSpec(1, durability='transient_local')

@@ -2,8 +2,9 @@
 
 One DiagnosticStatus per robot (a lone agent publishes an array with its own; a process hosting
 several robots, :class:`HostedHealth`, one array with one status per hosted robot, the
-ROS-idiomatic form of an aggregated publisher), name ``knode_swarm agent robot_<id>``, hardware_id
-``robot_<id>``, with the key values: neighbours (real rows of the last Y), heard (robots heard
+ROS-idiomatic form of an aggregated publisher), name ``knode_swarm agent <robot name>``,
+hardware_id the robot's name in the fleet (``robot_<id>`` without a fleet file; the monitor maps
+it back), with the key values: neighbours (real rows of the last Y), heard (robots heard
 at least once) / robots, own state age (s, on the node's clock), command rate (Hz, since the
 previous report), saturated share (commands clipped at the command limit since the previous
 report), drops by reason (totals), link counters when the link model is on, lifecycle state.
@@ -79,7 +80,7 @@ def assess(
 
 
 def _entry(
-    robot_id: int,
+    name: str,
     status: Dict[str, Any],
     before: Dict[str, int],
     seconds: float,
@@ -91,7 +92,7 @@ def _entry(
     """(level, name, message, hardware_id, key values) of one robot's report (see :func:`assess`)."""
     own_age = None if own_ns is None else max(0.0, (now_ns - own_ns) * 1e-9) if now_ns > 0 else 0.0
     level, message, values = assess(status, before, seconds, own_age, state_timeout, neighbours)
-    return level, f'knode_swarm agent robot_{robot_id}', message, f'robot_{robot_id}', values
+    return level, f'knode_swarm agent {name}', message, name, values
 
 
 def diagnostics_to_cdr(stamp_ns: int, entries) -> bytes:
@@ -118,13 +119,15 @@ def diagnostics_to_cdr(stamp_ns: int, entries) -> bytes:
 class HostedHealth:
     """Publishes :func:`assess` of every robot of a hosting ``agents`` node on ``/diagnostics``:
     one DiagnosticArray per report (serialized by :func:`diagnostics_to_cdr`) with one status per
-    hosted robot, each as its lone agent's."""
+    hosted robot, each as its lone agent's. ``name_of``: a robot's name (hardware_id), by
+    default the default fleet's ``robot_<id>``."""
 
-    def __init__(self, node, robot_ids, state_timeout: float, qos_profile):
+    def __init__(self, node, robot_ids, state_timeout: float, qos_profile, name_of=None):
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.node = node
         self.robot_ids = [int(r) for r in robot_ids]
+        self.names = {r: (name_of(r) if name_of is not None else f'robot_{r}') for r in self.robot_ids}
         self.state_timeout = float(state_timeout)
         self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', qos_profile)
         self._before: Dict[int, Dict[str, int]] = {r: {} for r in self.robot_ids}
@@ -141,7 +144,14 @@ class HostedHealth:
             status, own_ns, neighbours = reports[rid]
             entries.append(
                 _entry(
-                    rid, status, self._before[rid], seconds, now_ns, own_ns, self.state_timeout, neighbours
+                    self.names[rid],
+                    status,
+                    self._before[rid],
+                    seconds,
+                    now_ns,
+                    own_ns,
+                    self.state_timeout,
+                    neighbours,
                 )
             )
             self._before[rid] = dict(status['counters'])
@@ -154,8 +164,8 @@ class AgentHealth(HostedHealth):
     """Publishes :func:`assess` of a lone agent node on ``/diagnostics``: a :class:`HostedHealth`
     of its one robot (the same report and bytes)."""
 
-    def __init__(self, node, robot_id: int, state_timeout: float, qos_profile):
-        super().__init__(node, [robot_id], state_timeout, qos_profile)
+    def __init__(self, node, robot_id: int, state_timeout: float, qos_profile, name_of=None):
+        super().__init__(node, [robot_id], state_timeout, qos_profile, name_of)
         self.robot_id = int(robot_id)
 
     def publish(

@@ -94,9 +94,15 @@ class ManagedAgentMixin:
             timer = getattr(self, name, None)
             if timer is not None:
                 self.destroy_timer(timer)
+        if getattr(self, '_inbox_poll', None) is not None:
+            self.destroy_timer(self._inbox_poll.timer)
+            self._inbox_poll = None
         for sub in getattr(self, 'odom_subs', []):
             self.destroy_subscription(sub)
         self.odom_subs = []
+        if getattr(self, 'inbox', None) is not None:
+            self.inbox.destroy()
+            self.inbox = None
         self.configured = False
         return TransitionCallbackReturn.SUCCESS
 

@@ -26,6 +26,7 @@ from rclpy.lifecycle import LifecycleNode
 from std_msgs.msg import String
 
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS, AgentLogic
+from knode_swarm_ros.logic.agent.realtime_tick import GraceArm
 from knode_swarm_ros.logic.agent.setpoint import SetpointOutput
 from knode_swarm_ros.logic.common import ConfigError, status_json
 from knode_swarm_ros.logic.reporting import LOG_EVERY_S as _LOG_EVERY_S
@@ -33,6 +34,7 @@ from knode_swarm_ros.logic.reporting import Throttle, throttled_log, write_json_
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
     COMMAND_MESSAGES,
+    STATE_MESSAGES,
     CdrError,
     command_to_cdr,
     odom_fields_from_cdr,
@@ -43,6 +45,7 @@ from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, node_name_from_args
 
 from .health import AgentHealth
+from .inbox import StateInbox
 from .link import AgentLink
 from .managed import ManagedAgentMixin
 from .params import declare_agent_parameters
@@ -59,6 +62,9 @@ _EXPLAIN = {
     'too_old': 'older than state_timeout',
     'too_future': 'stamped further ahead of the clock than future_tolerance',
 }
+
+#: While a tick waits for its neighbours' states in the inbox: how often it is taken (wall s).
+INBOX_POLL_S = 0.005
 
 #: How long after the first robot is heard a robot never heard is named (s).
 MISSING_AFTER_S = 5.0
@@ -107,7 +113,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self.spec = self.logic.spec
         fleet.check_scenario(self.spec.command, self.spec.velocity is not None)
         self.fleet = fleet
-        self.states = StateDecoder(fleet, self.spec, self.twist_frame)
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt, own=[robot_id])
         self._own_z = None  # the newest own state heard (a velocity setpoint starts from its velocity)
         self.setpoint = (
             SetpointOutput(
@@ -128,7 +134,9 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.twist_frame,
             fleet=fleet,
         )
-        self.health = AgentHealth(self, robot_id, state_timeout, qos.DIAGNOSTICS)  # /diagnostics
+        self.health = AgentHealth(
+            self, robot_id, state_timeout, qos.DIAGNOSTICS, fleet.name_of
+        )  # /diagnostics
 
         self.mode = mode
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -146,7 +154,17 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             COMMAND_MESSAGES[self.command_type], fleet.command_topic(robot_id, self.spec.command), qos.COMMAND
         )
         self.status_pub = self.create_publisher(String, fleet.status_topic(robot_id), qos.STATUS)
-        self.odom_subs = self.states.subscribe(self, ids, self._on_odom)
+        # A realtime pose stream (motion capture, faster than the policy): the neighbours' poses
+        # are taken when the agent wakes anyway (its own pose, its timers), not one by one.
+        poses_in_realtime = fleet.state.type == 'pose' and mode == 'realtime'
+        inboxed = [i for i in ids if i != robot_id] if poses_in_realtime else []
+        stream = qos.POSE_STREAM if poses_in_realtime else qos.ODOM
+        self.odom_subs = self.states.subscribe(
+            self, [i for i in ids if i not in inboxed], self._on_odom, stream
+        )
+        self.inbox = (
+            StateInbox(self, STATE_MESSAGES['pose'], inboxed, fleet.state_topic, stream) if inboxed else None
+        )
         self._missing_since = None  # when the swarm was first heard (monotonic s)
         self.on_state = (
             self.logic.ticks is not None
@@ -162,6 +180,11 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self._wall,
         )
         self.grace_timer = None if self._grace is None else self._grace.timer
+        self._inbox_poll = (  # while a tick waits: take the inbox every INBOX_POLL_S
+            GraceArm(self.create_timer(INBOX_POLL_S, self._on_inbox_poll, clock=self._wall))
+            if self.inbox is not None and self._grace is not None
+            else None
+        )
         self.status_timer = self.create_timer(p.status_period, self._publish_status, clock=self._wall)
         self.get_logger().info(
             f'robot {robot_id} of {len(ids)} ({self.spec.name}, {mode}): policy {policy.path} on {policy.backend} '
@@ -177,29 +200,51 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
 
     # --- callbacks -----------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
+        now = self.get_clock().now().nanoseconds
+        self._take_inbox(now)
+        self._hear(topic_robot, data, now)
+        self._after_hearing(now)
+
+    def _take_inbox(self, now: int) -> None:
+        """File what the neighbours' inbox holds (realtime pose fleets: :mod:`.inbox`)."""
+        if self.inbox is not None:
+            for topic_robot, data in self.inbox.take():
+                self._hear(topic_robot, data, now)
+
+    def _on_inbox_poll(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        self._take_inbox(now)
+        self._realtime_poll(now)
+
+    def _hear(self, topic_robot: int, data: bytes, now: int) -> None:
+        """Decode and file one message of robot ``topic_robot``'s state topic (no tick polled)."""
         try:
-            robot, stamp, frame, z = self.states.decode(topic_robot, data)
+            filed = self.states.filed(topic_robot, data)
         except CdrError as exc:
             self.logic.malformed()
             self._note_drop('malformed', str(exc))
             return
-        if self.unicycle.enabled and robot is not None:  # the policy sees the point ahead (unicycle_state)
-            z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
-        if robot == self.logic.me and np.all(np.isfinite(z)):
-            self._own_z = z
-        now = self.get_clock().now().nanoseconds
-        if not self._through_link(robot, stamp, z, now):
-            if self.on_state:  # states the link released may complete a waiting tick
-                self._realtime_poll(now)
-            return
-        outcome = self.logic.receive(robot, stamp, z, now, time.monotonic())
-        if outcome in self._drops:
-            detail = (
-                f'child_frame_id {frame!r} on {self.fleet.state_topic(topic_robot)}'
-                if outcome == 'unknown_id'
-                else f'robot {topic_robot} at {stamp * 1e-9:.3f} s (clock {now * 1e-9:.3f} s)'
-            )
-            self._note_drop(outcome, detail)
+        for robot, stamp, frame, z, step, own in filed:
+            if (
+                self.unicycle.enabled and robot is not None
+            ):  # the policy sees the point ahead (unicycle_state)
+                z = self.unicycle.observe(robot == self.logic.me, *odom_fields_from_cdr(data)[2:], z)
+            if robot == self.logic.me and np.all(np.isfinite(z)):
+                self._own_z = z if own is None else own
+                if own is not None and step is not None:
+                    self.logic.own_row(step, own)
+            if not self._through_link(robot, stamp, z, now):
+                continue  # states the link released may complete a waiting tick: polled after
+            outcome = self.logic.receive(robot, stamp, z, now, time.monotonic(), step=step)
+            if outcome in self._drops:
+                detail = (
+                    f'child_frame_id {frame!r} on {self.fleet.state_topic(topic_robot)}'
+                    if outcome == 'unknown_id'
+                    else f'robot {topic_robot} at {stamp * 1e-9:.3f} s (clock {now * 1e-9:.3f} s)'
+                )
+                self._note_drop(outcome, detail)
+
+    def _after_hearing(self, now: int) -> None:
         if self.mode == 'lockstep':
             self._lockstep_poll()
         elif self.on_state:
@@ -241,15 +286,20 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         cmd = self.logic.realtime_poll(now, time.monotonic())
         if cmd is not None:
             self._publish_command(cmd)
-        self._grace.set(self.logic.ticks.pending is not None)
+        waiting = self.logic.ticks.pending is not None
+        self._grace.set(waiting)
+        if self._inbox_poll is not None:  # the neighbours' states of the tick are not taken on arrival
+            self._inbox_poll.set(waiting)
 
     def _on_grace(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._take_inbox(now)
         self._release_link(now)
         self._realtime_poll(now)
 
     def _on_tick(self) -> None:
         now = self.get_clock().now().nanoseconds
+        self._take_inbox(now)
         self._release_link(now)
         cmd = self.logic.watchdog(now) if self.on_state else self.logic.tick(now)
         if cmd is None:
@@ -281,6 +331,7 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self.unicycle.publish(time_msg(cmd.stamp_ns), cmd)
             return
         value = cmd.value
+        self.states.command(self.logic.me, cmd.stamp_ns, value)  # the own velocity knows it
         if self.setpoint is not None:  # a velocity loop: v_sp = v_est + u T
             value = self.setpoint.value(cmd, self._own_z[self.spec.velocity])
         # serialized directly (AccelStamped and TwistStamped share one layout)

@@ -109,19 +109,30 @@ class StateDecoder:
     shared by the robots of a process: they hear the same poses).
     """
 
-    def __init__(self, fleet: Fleet, spec, twist_frame: str):
+    def __init__(
+        self, fleet: Fleet, spec, twist_frame: str, dt: Optional[float] = None, own: Sequence[int] = ()
+    ):
         self.fleet = fleet
         self.spec = spec
         self.twist_frame = twist_frame
-        self.poses = PoseStates(spec, fleet.state.velocity_window) if fleet.state.type == 'pose' else None
+        self.poses = (
+            PoseStates(spec, fleet.state.velocity_window, dt, own) if fleet.state.type == 'pose' else None
+        )
 
-    def subscribe(self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None]) -> list:
+    def command(self, robot: int, stamp_ns: int, u) -> None:
+        """Own robot ``robot`` commanded ``u`` from ``stamp_ns``: its command-aided velocity."""
+        if self.poses is not None:
+            self.poses.command(robot, stamp_ns, u)
+
+    def subscribe(
+        self, node, ids: Sequence[int], on_state: Callable[[int, bytes], None], qos_profile=qos.ODOM
+    ) -> list:
         """One raw subscription per robot's state topic: ``on_state(j, bytes)`` (decoded by
         :meth:`decode`, 3x cheaper than rclpy's message objects)."""
         msg_type = STATE_MESSAGES[self.fleet.state.type]
         return [
             node.create_subscription(
-                msg_type, self.fleet.state_topic(rid), partial(on_state, rid), qos.ODOM, raw=True
+                msg_type, self.fleet.state_topic(rid), partial(on_state, rid), qos_profile, raw=True
             )
             for rid in ids
         ]
@@ -141,6 +152,27 @@ class StateDecoder:
         except CdrError as exc:
             raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
         return (topic_robot if self.fleet.owns_frame(frame, topic_robot) else None), stamp, frame, z
+
+    def filed(self, topic_robot: int, data: bytes) -> list:
+        """What to file of raw bytes heard on robot ``topic_robot``'s state topic:
+        ``[(robot, stamp_ns, frame, z [d], step, own)]``. Odometry: the one state (step None:
+        the stamp's nearest; own None). Poses: the states that stand for a step
+        (:meth:`.PoseStates.filed`; none for most poses of a stream faster than the policy),
+        ``own`` an own robot's command-aided state (its own row of Y) or None.
+
+        Raises:
+            CdrError: undecodable bytes; the message names the topic.
+        """
+        if self.poses is None:
+            return [(*self.decode(topic_robot, data), None, None)]
+        try:
+            stamp, frame, pose = pose_from_cdr(data)
+        except CdrError as exc:
+            raise CdrError(f'{self.fleet.state_topic(topic_robot)}: {exc}') from None
+        return [
+            (topic_robot, filed_stamp, frame, z, step, own)
+            for step, filed_stamp, z, own in self.poses.filed(topic_robot, stamp, pose[:3], pose[3:])
+        ]
 
 
 def control_timers(

@@ -126,16 +126,16 @@ class AgentsNode(Node):
         self._log_throttle = Throttle()
         self._announced_ready = False
         self._warm_up(policy)
-        self.health = HostedHealth(self, hosted, p.state_timeout, qos.DIAGNOSTICS)  # /diagnostics, one array
-
         fleet = self.fleet = p.swarm_fleet()
+        self.health = HostedHealth(self, hosted, p.state_timeout, qos.DIAGNOSTICS, fleet.name_of)  # one array
+
         fleet.check_scenario(self.spec.command, self.spec.velocity is not None)
         if fleet.command.interface != 'policy' or fleet.command_type(self.spec.command) == 'twist':
             raise ConfigError(
                 f'the fleet {fleet.path} commands {fleet.command.interface} ({fleet.command.type}): a real '
                 "robot's output, not offered by the agents node; run one agent per robot"
             )
-        self.states = StateDecoder(fleet, self.spec, self.twist_frame)
+        self.states = StateDecoder(fleet, self.spec, self.twist_frame, policy.dt, own=hosted)
         msg_type = COMMAND_MESSAGES[fleet.command_type(self.spec.command)]
         self.cmd_pubs = {
             rid: self.create_publisher(msg_type, fleet.command_topic(rid, self.spec.command), qos.COMMAND)
@@ -174,15 +174,18 @@ class AgentsNode(Node):
     # --- callbacks -----------------------------------------------------------------------
     def _on_odom(self, topic_robot: int, data: bytes) -> None:
         try:
-            robot, stamp, frame, z = self.states.decode(topic_robot, data)
+            filed = self.states.filed(topic_robot, data)
         except CdrError as exc:
             self.hosted.malformed()
             self._note_drop('malformed', str(exc))
             return
         now = self.get_clock().now().nanoseconds
-        outcome = self.hosted.receive(robot, stamp, z, now, time.monotonic())
-        if outcome in self._drops:
-            self._note_drop(outcome, f'robot {topic_robot} at {stamp * 1e-9:.3f} s')
+        for robot, stamp, _frame, z, step, own in filed:
+            if own is not None and step is not None and robot in self.hosted.logics:
+                self.hosted.logics[robot].own_row(step, own)
+            outcome = self.hosted.receive(robot, stamp, z, now, time.monotonic(), step=step)
+            if outcome in self._drops:
+                self._note_drop(outcome, f'robot {topic_robot} at {stamp * 1e-9:.3f} s')
         if self.mode == 'lockstep':
             self._publish(self.hosted.lockstep_poll(time.monotonic()))
         elif self.on_state:
@@ -194,6 +197,7 @@ class AgentsNode(Node):
 
     def _publish(self, commands) -> None:
         for rid, cmd in commands:
+            self.states.command(rid, cmd.stamp_ns, cmd.value)  # the own velocity knows it
             self.cmd_pubs[rid].publish(
                 command_to_cdr(cmd.stamp_ns, cmd.value, self.spec)
             )  # bytes: no msg objects

@@ -6,7 +6,18 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from knode_swarm_ros.logic.contract import qos_specs
 
-__all__ = ['ODOM', 'COMMAND', 'CLOCK', 'STATUS', 'PROGRESS', 'METRICS', 'MARKERS', 'DIAGNOSTICS', 'profile']
+__all__ = [
+    'ODOM',
+    'POSE_STREAM',
+    'COMMAND',
+    'CLOCK',
+    'STATUS',
+    'PROGRESS',
+    'METRICS',
+    'MARKERS',
+    'DIAGNOSTICS',
+    'profile',
+]
 
 _RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {'volatile': DurabilityPolicy.VOLATILE, 'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
@@ -23,6 +34,7 @@ def profile(spec: qos_specs.QosSpec) -> QoSProfile:
 
 
 ODOM = profile(qos_specs.ODOM)
+POSE_STREAM = profile(qos_specs.POSE_STREAM)
 COMMAND = profile(qos_specs.COMMAND)
 CLOCK = profile(qos_specs.CLOCK)
 STATUS = profile(qos_specs.STATUS)

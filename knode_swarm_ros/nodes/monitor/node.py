@@ -4,7 +4,8 @@ Reads what the agents read: ``robot_<i>/odom`` of robots 0 .. n-1, or the state 
 types of a fleet's robots (parameter ``fleet``), raw, as the recorder does: only each robot's
 newest Odometry is kept and decoded at the next tick; poses are all decoded at the next tick, so
 that the velocity estimate (the fleet's window, as the agents') sees the whole stream. And the
-agents' health on ``/diagnostics`` (``hardware_id`` ``robot_<id>``, the fleet's ids). Every
+agents' health on ``/diagnostics`` (``hardware_id``: the robot's name in the fleet, ``robot_<id>``
+without a fleet file). Every
 tick (``rate`` per wall second) it builds a :class:`~knode_swarm_ros.logic.monitor.Snapshot` and
 publishes it as ``monitor/metrics``
 (std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), as RViz markers on
@@ -107,6 +108,7 @@ class MonitorNode(Node):
         check_overrides(self, sys.argv)
         self.fleet = load_fleet(fleet_file) if fleet_file else default_fleet(range(robots))
         robots = len(self.fleet.robots)
+        self._by_name = {r.name: r.id for r in self.fleet.robots}  # the agents' diagnostics hardware_id
         self.poses = (
             PoseStates(self.scenario, self.fleet.state.velocity_window)
             if self.fleet.state.type == 'pose'
@@ -190,7 +192,7 @@ class MonitorNode(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            robot = parse_robot_frame(status.hardware_id)
+            robot = self._by_name.get(status.hardware_id, parse_robot_frame(status.hardware_id))
             if robot is not None:
                 level = status.level
                 self.watch.diagnostics(robot, level[0] if isinstance(level, bytes) else int(level))
