@@ -11,7 +11,10 @@ derived, in order (later rules use earlier values, derived or given):
 * ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
   neighbours of a lattice);
 * ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
-  and at most the smallest swarm's size;
+  and at most the smallest swarm's size (``policy.encoder: flat``, whose weights are per row);
+  with ``policy.encoder: set`` (weights independent of k) a cap for denser swarms than the data:
+  1 + the robots within d_cr of a robot of a close-packed lattice (hexagonal in 2D, fcc in 3D)
+  at the observed median nearest-neighbour distance;
 * ``policy.command_limit``: 1.5 x the 99th percentile of the implied commands' largest axis
   (|dv / dt| for acceleration, |dp / dt| for velocity commands); floored for a swarm whose
   commands are all zero;
@@ -89,6 +92,20 @@ def _implied_commands(trajectories: Sequence[np.ndarray], spec: Scenario, dt: fl
     return np.concatenate(parts)
 
 
+def lattice_neighbours(dimensions: int, radius: float) -> int:
+    """Points of a close-packed lattice of unit spacing (hexagonal in 2D, fcc in 3D) within
+    ``radius`` of a lattice point, the point itself excluded."""
+    if dimensions == 2:
+        basis = np.array([[1.0, 0.0], [0.5, math.sqrt(3) / 2]])
+    else:
+        basis = np.array([[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 0.0]]) / math.sqrt(2)
+    reach = int(math.ceil(2 * radius)) + 1
+    axis = np.arange(-reach, reach + 1)
+    index = np.stack(np.meshgrid(*[axis] * dimensions, indexing='ij'), -1).reshape(-1, dimensions)
+    dist = np.linalg.norm(index @ basis, axis=-1)
+    return int(((dist > 0) & (dist <= radius + 1e-9)).sum())
+
+
 def _gain_phi(limit: float, d0: float) -> float:
     """phi with lambda = phi^2 such that the continuous push lambda (1/d - 1/d0) / d^2 at
     d = d0 / 2 is half the command limit: lambda = limit d0^3 / 8."""
@@ -126,12 +143,23 @@ def derive(
     n_min = min(f.shape[1] for f in frames)
     counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
     q90 = float(np.quantile(counts, 0.9))
-    put(
-        'policy.k',
-        int(min(max(2, 1 + math.ceil(q90)), n_min)),
-        f'1 + the 90th percentile of the number of robots within d_cr = {d_cr:.4g} ({q90:g}), '
-        f'in [2, {n_min}] (the smallest swarm)',
-    )
+    if pol.get('encoder', 'flat') == 'set':
+        packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
+        put(
+            'policy.k',
+            int(min(max(2, 1 + packed), 1024)),
+            f'1 + the {packed} robots within d_cr = {d_cr:.4g} of a robot of a close-packed '
+            f'{"hexagonal" if spec.dimensions == 2 else "fcc"} lattice at the median nearest-neighbour '
+            f'distance ({median_nn:.4g}): a cap for swarms denser than the data (the set encoder '
+            f'has no weight per row; the data show at most {n_min - 1} neighbours)',
+        )
+    else:
+        put(
+            'policy.k',
+            int(min(max(2, 1 + math.ceil(q90)), n_min)),
+            f'1 + the 90th percentile of the number of robots within d_cr = {d_cr:.4g} ({q90:g}), '
+            f'in [2, {n_min}] (the smallest swarm)',
+        )
     u = _implied_commands(trajectories, spec, dt)
     q99 = float(np.quantile(u, 0.99)) if u.size else 0.0
     vel = _velocity_entries(frames, trajectories, spec, dt)
