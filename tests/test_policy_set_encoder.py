@@ -168,8 +168,10 @@ def test_close_packed_lattice_counts():
     assert lattice_neighbours(3, 1.0) == 12 and lattice_neighbours(3, 3.0) == 176
 
 
-def test_the_set_encoder_derives_k_as_a_packing_cap():
-    """On a lattice of spacing 0.5 (d_cr = 1.5 = 3 spacings): k = 1 + 36, beyond the 9 robots."""
+def test_the_set_encoder_derives_its_range_and_k_from_the_data():
+    """A 3 x 3 lattice of spacing 0.5: every pair is at most 2 sqrt(2) spacings apart, under
+    3 spacings, so d_cr = 1.5; 36 lattice robots lie within it, and the data show 8 neighbours,
+    so k = 1 + min(36, 4 x 8) = 33."""
     spacing = 0.5
     grid = spacing * np.array([[i, j] for i in range(3) for j in range(3)], dtype=float)
     tracks = np.stack([grid[None] + 0.1 * np.arange(5)[:, None, None] * np.array([0.3, 0.4])] * 2)
@@ -177,7 +179,13 @@ def test_the_set_encoder_derives_k_as_a_packing_cap():
         dict(name='lattice', dimensions=2, state='position', command='velocity', dt=0.1, arena=None)
     )
     recipe = os.path.join(os.path.dirname(__file__), '..', 'config', 'train_custom.yaml')
-    pending = load_config(recipe, {'policy.encoder': 'set'})
-    cfg, derived = resolve_config(pending, [tracks], json.dumps(spec.to_dict(), sort_keys=True), 0.1)
-    assert cfg['policy']['k'] == 37
+    ref = json.dumps(spec.to_dict(), sort_keys=True)
+    cfg, derived = resolve_config(load_config(recipe, {'policy.encoder': 'set'}), [tracks], ref, 0.1)
+    assert cfg['policy']['d_cr'] == pytest.approx(1.5) and cfg['policy']['k'] == 33
     assert 'close-packed hexagonal lattice' in derived['policy.k']['how']
+    # a wider swarm: the range is the 99th percentile of the distances between robots
+    wide = tracks * np.array([4.0, 1.0])
+    cfg, derived = resolve_config(load_config(recipe, {'policy.encoder': 'set'}), [wide], ref, 0.1)
+    pairs = np.linalg.norm(wide[0, 0][None] - wide[0, 0][:, None], axis=-1)[~np.eye(9, dtype=bool)]
+    assert cfg['policy']['d_cr'] == pytest.approx(np.quantile(pairs, 0.99), rel=1e-5)
+    assert derived['policy.d_cr']['how'].startswith('the 99th percentile of the distances')

@@ -9,12 +9,14 @@ Inputs are trajectories ``[N, T, n, d]`` at the policy's dt (the file's train sp
 derived, in order (later rules use earlier values, derived or given):
 
 * ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
-  neighbours of a lattice);
+  neighbours of a lattice); with ``policy.encoder: set``, the 99th percentile of the distances
+  between robots (at least that): the encoder learns the interactions' reach itself;
 * ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
   and at most the smallest swarm's size (``policy.encoder: flat``, whose weights are per row);
-  with ``policy.encoder: set`` (weights independent of k) a cap for denser swarms than the data:
-  1 + the robots within d_cr of a robot of a close-packed lattice (hexagonal in 2D, fcc in 3D)
-  at the observed median nearest-neighbour distance;
+  with ``policy.encoder: set`` (weights independent of k) room for larger, denser swarms than
+  the data: 1 + the smaller of the robots within d_cr of a robot of a close-packed lattice
+  (hexagonal in 2D, fcc in 3D) at the observed median nearest-neighbour distance and 4 x the
+  most robots the data show within d_cr;
 * ``policy.command_limit``: 1.5 x the 99th percentile of the implied commands' largest axis
   (|dv / dt| for acceleration, |dp / dt| for velocity commands); floored for a swarm whose
   commands are all zero;
@@ -57,6 +59,8 @@ DERIVED_FIELDS = (
     'noise.variance',
     'augment.rotate',
 )
+# A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
+DENSER = 4
 # Frames used for the statistics: enough for stable quantiles, cheap on long recordings.
 MAX_FRAMES = 4000
 
@@ -106,6 +110,13 @@ def lattice_neighbours(dimensions: int, radius: float) -> int:
     return int(((dist > 0) & (dist <= radius + 1e-9)).sum())
 
 
+def _pair_sample(p: np.ndarray) -> np.ndarray:
+    """Distances between distinct robots of frames ``p [F, n, dim]`` (at most ~10^6 pairs)."""
+    p = p[:: max(1, p.shape[0] * p.shape[1] ** 2 // 1_000_000)]
+    d = np.linalg.norm(p[:, None, :, :] - p[:, :, None, :], axis=-1)
+    return d[:, ~np.eye(p.shape[1], dtype=bool)].ravel()
+
+
 def _gain_phi(limit: float, d0: float) -> float:
     """phi with lambda = phi^2 such that the continuous push lambda (1/d - 1/d0) / d^2 at
     d = d0 / 2 is half the command limit: lambda = limit d0^3 / 8."""
@@ -134,24 +145,38 @@ def derive(
         record[dotted] = {'value': value, 'how': how}
 
     median_nn = float(np.median(nn))
-    put(
-        'policy.d_cr',
-        round(3.0 * median_nn, 6),
-        f'3 x the median nearest-neighbour distance ({median_nn:.4g})',
-    )
+    set_encoder = pol.get('encoder', 'flat') == 'set'
+    if set_encoder:
+        pairs = np.concatenate([_pair_sample(p) for p in pos])
+        q99_pair = float(np.quantile(pairs, 0.99))
+        put(
+            'policy.d_cr',
+            round(max(q99_pair, 3.0 * median_nn), 6),
+            f'the 99th percentile of the distances between robots ({q99_pair:.4g}), at least 3 x the '
+            f'median nearest-neighbour distance ({median_nn:.4g}): the set encoder sees (almost) the '
+            'whole observed swarm and learns how far interactions reach (its inputs hold the distance)',
+        )
+    else:
+        put(
+            'policy.d_cr',
+            round(3.0 * median_nn, 6),
+            f'3 x the median nearest-neighbour distance ({median_nn:.4g})',
+        )
     d_cr = float(pol['d_cr'])
     n_min = min(f.shape[1] for f in frames)
     counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
     q90 = float(np.quantile(counts, 0.9))
-    if pol.get('encoder', 'flat') == 'set':
+    if set_encoder:
         packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
+        seen = int(counts.max())
         put(
             'policy.k',
-            int(min(max(2, 1 + packed), 1024)),
-            f'1 + the {packed} robots within d_cr = {d_cr:.4g} of a robot of a close-packed '
-            f'{"hexagonal" if spec.dimensions == 2 else "fcc"} lattice at the median nearest-neighbour '
-            f'distance ({median_nn:.4g}): a cap for swarms denser than the data (the set encoder '
-            f'has no weight per row; the data show at most {n_min - 1} neighbours)',
+            int(min(max(2, 1 + min(packed, DENSER * seen)), 1024)),
+            f'1 + the smaller of the {packed} robots within d_cr = {d_cr:.4g} of a robot of a '
+            f'close-packed {"hexagonal" if spec.dimensions == 2 else "fcc"} lattice at the median '
+            f'nearest-neighbour distance ({median_nn:.4g}) and {DENSER} x the most robots the data show '
+            f'within d_cr ({seen}): room for larger, denser swarms than the data (the set encoder '
+            'has no weight per row)',
         )
     else:
         put(
