@@ -54,8 +54,11 @@ def swarm_batch(spec_dims, k, n=12, seed=0, d_cr=3.0):
     return torch.tensor(Y, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32)
 
 
-CASES = [('flock2d', (2, 4)), ('boids3d', (3, 6)), (ARENA, (3, 6))]
-IDS = ['flock2d', 'boids3d', 'arena3d']
+FIRST_ORDER = scenario_from_dict(
+    dict(name='gather2d', dimensions=2, state='position', command='velocity', dt=0.05, arena=None)
+)
+CASES = [('flock2d', (2, 4)), ('boids3d', (3, 6)), (ARENA, (3, 6)), (FIRST_ORDER, (2, 2))]
+IDS = ['flock2d', 'boids3d', 'arena3d', 'position2d']
 
 
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)

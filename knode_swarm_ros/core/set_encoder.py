@@ -1,7 +1,9 @@
 """The permutation-invariant network part of a policy (``policy.encoder: set``).
 
 ``u_theta(Y, mask) = W_sum sum_j h_j + rho(own, mean_j h_j)``, with one shared per-neighbour
-network ``h_j = tanh(W [own, y_j - y_0, |p_j - p_0|] + b)`` over the neighbours the mask keeps.
+network ``h_j = tanh(W [own velocity or heading, y_j - y_0, |p_j - p_0|] + b)`` over the
+neighbours the mask keeps. The own position (kept only where walls make it matter) enters
+``rho`` alone: what depends on where the robot is must not grow with its neighbour count.
 
 * The sum channel is a sum of learnt pairwise interactions: it grows with the number of
   neighbours as a physical force does, so a policy learnt on a small swarm sees a denser one
@@ -31,7 +33,8 @@ class NeighbourSetEncoder(nn.Module):
         super().__init__()
         self.position_dim = position_dim
         self.keep_own_position = keep_own_position
-        self.phi = nn.Linear(2 * state_dim + 1, hidden)
+        self.moving = state_dim > position_dim
+        self.phi = nn.Linear(2 * state_dim - position_dim + 1, hidden)
         self.rho = nn.Sequential(
             nn.Linear(state_dim + hidden, hidden), nn.Tanh(), nn.Linear(hidden, command_dim)
         )
@@ -46,7 +49,9 @@ class NeighbourSetEncoder(nn.Module):
         rel = Y[:, 1:, :] - Y[:, :1, :]  # [B, k - 1, d]
         # a smooth distance: sqrt has an infinite slope at 0 (coincident robots)
         dist = torch.sqrt((rel[:, :, : self.position_dim] ** 2).sum(-1, keepdim=True) + 1e-12)
-        x = torch.cat([own.unsqueeze(1).expand(-1, rel.shape[1], -1), rel, dist], dim=-1)
+        x = torch.cat([rel, dist], dim=-1)
+        if self.moving:  # the own velocity or heading (a position-only state has none)
+            x = torch.cat([own[:, self.position_dim :].unsqueeze(1).expand(-1, rel.shape[1], -1), x], dim=-1)
         m = mask[:, 1:].to(Y.dtype).unsqueeze(-1)
         h = torch.tanh(self.phi(x)) * m  # masked rows contribute exact zeros
         total = h.sum(1)
