@@ -192,3 +192,14 @@ def test_the_set_encoder_derives_its_range_and_k_from_the_data():
     pairs = np.linalg.norm(wide[0, 0][None] - wide[0, 0][:, None], axis=-1)[~np.eye(9, dtype=bool)]
     assert cfg['policy']['d_cr'] == pytest.approx(np.quantile(pairs, 0.99), rel=1e-5)
     assert derived['policy.d_cr']['how'].startswith('the 99th percentile of the distances')
+
+
+@pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
+def test_a_neighbour_in_the_robots_own_state_adds_nothing_to_the_sum(scenario, dims):
+    """No constant per neighbour: a denser swarm of copies of the robot does not drift."""
+    policy = make(scenario, k=8, collision=False, wall=False)
+    Y, mask = swarm_batch(dims, 2, n=6, d_cr=0.01)  # the robot alone
+    copies = torch.cat([Y[:, :1]] * 8, dim=1), torch.ones(Y.shape[0], 8)
+    with torch.no_grad():
+        h_alone = policy(Y, mask)
+        torch.testing.assert_close(policy(*copies), h_alone, rtol=1e-5, atol=1e-5)

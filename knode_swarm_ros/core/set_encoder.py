@@ -1,8 +1,9 @@
 """The permutation-invariant network part of a policy (``policy.encoder: set``).
 
 ``u_theta(Y, mask) = W_sum sum_j h_j + rho(own, mean_j h_j)``, with one shared per-neighbour
-network ``h_j = tanh(W [own velocity or heading, y_j - y_0, |p_j - p_0|] + b)`` over the
-neighbours the mask keeps. The own position (kept only where walls make it matter) enters
+network ``h_j = g(y_j - y_0) - g(0)``, ``g(r) = tanh(W [own velocity or heading, r, |r_p|] + b)``,
+over the neighbours the mask keeps (a neighbour in the robot's own state adds nothing).
+The own position (kept only where walls make it matter) enters
 ``rho`` alone: what depends on where the robot is must not grow with its neighbour count.
 
 * The sum channel is a sum of learnt pairwise interactions: it grows with the number of
@@ -53,7 +54,14 @@ class NeighbourSetEncoder(nn.Module):
         if self.moving:  # the own velocity or heading (a position-only state has none)
             x = torch.cat([own[:, self.position_dim :].unsqueeze(1).expand(-1, rel.shape[1], -1), x], dim=-1)
         m = mask[:, 1:].to(Y.dtype).unsqueeze(-1)
-        h = torch.tanh(self.phi(x)) * m  # masked rows contribute exact zeros
+        # a neighbour with the robot's own state contributes nothing: otherwise a constant per
+        # neighbour, balanced by rho's bias at the training swarm's count, drifts a denser swarm
+        same = torch.zeros_like(x[:, :1, :])
+        if self.moving:
+            same = torch.cat(
+                [x[:, :1, : x.shape[2] - rel.shape[2] - 1], same[:, :, : rel.shape[2] + 1]], dim=-1
+            )
+        h = (torch.tanh(self.phi(x)) - torch.tanh(self.phi(same))) * m  # masked rows: exact zeros
         total = h.sum(1)
         mean = total / torch.clamp(m.sum(1), min=1.0)
         return self.sum_out(total) + self.rho(torch.cat([own, mean], dim=1))
