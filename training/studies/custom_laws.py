@@ -6,6 +6,7 @@ your own").
     python -m training.studies.custom_laws --out runs/laws                     # all three laws
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
     python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 2 --rate 120
+    python -m training.studies.custom_laws --out runs/set --set policy.encoder=set --starts 32
 
 With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
 positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
