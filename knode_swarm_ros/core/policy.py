@@ -5,7 +5,10 @@
 * ``u_theta``: one hidden layer (128 tanh units by default) on features of the neighbour
   matrix; ``frame='relative'`` (default) feeds neighbour states relative to the robot plus
   the mask (translation invariant; the own position is kept only where walls make absolute
-  position matter), ``frame='absolute'`` feeds the paper's raw masked Y.
+  position matter), ``frame='absolute'`` feeds the paper's raw masked Y. That is
+  ``encoder='flat'`` (default): an MLP over the k rows flattened. ``encoder='set'`` is a
+  permutation-invariant neighbour encoder (:mod:`.set_encoder`) whose weights do not depend on
+  k, so a policy learnt with a small k runs with a larger one.
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
@@ -31,6 +34,7 @@ from .knowledge import (
     wall_avoidance,
 )
 from .scenarios import get_scenario
+from .set_encoder import NeighbourSetEncoder
 
 __all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS']
 
@@ -52,6 +56,7 @@ class PolicyConfig:
     tau: int = 0
     hidden: int = 128
     frame: str = 'relative'
+    encoder: str = 'flat'
     command_limit: float = 10.0
     collision: bool = True
     potential: str = 'paper'
@@ -74,6 +79,8 @@ class PolicyConfig:
             'tau': self.tau >= 0,
             'hidden': self.hidden >= 1,
             'frame': self.frame in ('relative', 'absolute'),
+            # the set encoder is built on offsets to the robot: it has no absolute frame
+            'encoder': self.encoder == 'flat' or (self.encoder == 'set' and self.frame == 'relative'),
             'potential': self.potential in ('paper', 'continuous'),
             'command_limit': self.command_limit > 0,
             'collision_d0': self.collision_d0 > 0,
@@ -147,18 +154,27 @@ class KNODEPolicy(nn.Module):
         self.input_scale: List[float] = [float(config.position_scale)] * spec.position_dim + [
             float(config.velocity_scale)
         ] * (spec.state_dim - spec.position_dim)
-        n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
-        self.net = nn.Sequential(
-            nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
-        )
+        if config.encoder == 'set':
+            self.encoder = NeighbourSetEncoder(
+                spec.state_dim, spec.position_dim, spec.command_dim, config.hidden, self.keep_own_position
+            )
+        else:
+            n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
+            self.net = nn.Sequential(
+                nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
+            )
         self.collision_gain = AvoidanceGain(config.collision_a, config.collision_phi)
         self.wall_gain = AvoidanceGain(config.wall_a, config.wall_phi)
 
-    def features(self, Y: Tensor, mask: Tensor) -> Tensor:
-        """Network input ``[B, F]`` from ``Y [B, k, d]`` and ``mask [B, k]``."""
-        m = mask.to(Y.dtype).unsqueeze(-1)
+    def scale_inputs(self, Y: Tensor) -> Tensor:
         if self.scaled:
-            Y = Y / torch.tensor(self.input_scale, dtype=Y.dtype, device=Y.device)
+            return Y / torch.tensor(self.input_scale, dtype=Y.dtype, device=Y.device)
+        return Y
+
+    def features(self, Y: Tensor, mask: Tensor) -> Tensor:
+        """Flat network input ``[B, F]`` from ``Y [B, k, d]`` and ``mask [B, k]``."""
+        m = mask.to(Y.dtype).unsqueeze(-1)
+        Y = self.scale_inputs(Y)
         if not self.relative:
             return (Y * m).flatten(1)
         own = Y[:, 0, :]
@@ -189,9 +205,15 @@ class KNODEPolicy(nn.Module):
                 out = out + wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
         return out
 
+    def network(self, Y: Tensor, mask: Tensor) -> Tensor:
+        """The learnt part ``u_theta [B, m]``."""
+        if hasattr(self, 'encoder'):  # resolved when scripted: one branch per policy
+            return self.encoder(self.scale_inputs(Y), mask)
+        return self.net(self.features(Y, mask))
+
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Command ``[B, m]`` for neighbour matrices ``Y [B, k, d]`` with ``mask [B, k]``."""
-        u = self.net(self.features(Y, mask)) + self.knowledge(Y, mask)
+        u = self.network(Y, mask) + self.knowledge(Y, mask)
         return torch.clamp(u, -self.command_limit, self.command_limit)
 
     def metadata(self, dt: Optional[float] = None) -> Dict[str, Any]:
@@ -210,6 +232,7 @@ class KNODEPolicy(nn.Module):
             'state_layout': list(spec.state_layout),
             'command_limit': self.command_limit,
             'frame': self.config.frame,
+            'encoder': self.config.encoder,
             'hidden': self.config.hidden,
             'config': {k: v for k, v in asdict(self.config).items() if k != 'extra'},
         }

@@ -25,6 +25,7 @@ __all__ = [
     'PolicyError',
     'PolicyMismatchError',
     'FORMAT',
+    'ENCODERS',
     'REQUIRED_KEYS',
     'BOUNDS',
     'check_meta',
@@ -48,6 +49,8 @@ REQUIRED_KEYS = (
     'state_layout',
 )
 PathLike = Union[str, os.PathLike]
+#: The policy network's encoders (key ``encoder``; absent means ``flat``).
+ENCODERS = ('flat', 'set')
 
 #: Allowed ranges of the numeric knode.json keys (inclusive; d_cr and command_limit exclude 0).
 #: Every robot builds and evaluates tensors and buffers from these numbers before checking
@@ -134,6 +137,10 @@ def check_meta(where: str, meta: Any, expect: Optional[Dict[str, Any]] = None) -
         numeric['command_limit'] = (
             _is_num(meta['command_limit'])
             and BOUNDS['command_limit'][0] < meta['command_limit'] <= BOUNDS['command_limit'][1]
+        )
+    if meta.get('encoder', 'flat') not in ENCODERS:  # files from before the set encoder are flat
+        raise PolicyError(
+            f"{where}: knode.json key 'encoder' is {meta['encoder']!r}; known: {', '.join(ENCODERS)}"
         )
     for key, ok in numeric.items():
         if not ok:

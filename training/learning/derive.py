@@ -9,9 +9,14 @@ Inputs are trajectories ``[N, T, n, d]`` at the policy's dt (the file's train sp
 derived, in order (later rules use earlier values, derived or given):
 
 * ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
-  neighbours of a lattice);
+  neighbours of a lattice); with ``policy.encoder: set``, the 99th percentile of the distances
+  between robots (at least that): the encoder learns the interactions' reach itself;
 * ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
-  and at most the smallest swarm's size;
+  and at most the smallest swarm's size (``policy.encoder: flat``, whose weights are per row);
+  with ``policy.encoder: set`` (weights independent of k) room for larger, denser swarms than
+  the data: 1 + the smaller of the robots within d_cr of a robot of a close-packed lattice
+  (hexagonal in 2D, fcc in 3D) at the observed median nearest-neighbour distance and 4 x the
+  most robots the data show within d_cr;
 * ``policy.command_limit``: 1.5 x the 99th percentile of the implied commands' largest axis
   (|dv / dt| for acceleration, |dp / dt| for velocity commands); floored for a swarm whose
   commands are all zero;
@@ -54,6 +59,8 @@ DERIVED_FIELDS = (
     'noise.variance',
     'augment.rotate',
 )
+# A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
+DENSER = 4
 # Frames used for the statistics: enough for stable quantiles, cheap on long recordings.
 MAX_FRAMES = 4000
 
@@ -89,6 +96,27 @@ def _implied_commands(trajectories: Sequence[np.ndarray], spec: Scenario, dt: fl
     return np.concatenate(parts)
 
 
+def lattice_neighbours(dimensions: int, radius: float) -> int:
+    """Points of a close-packed lattice of unit spacing (hexagonal in 2D, fcc in 3D) within
+    ``radius`` of a lattice point, the point itself excluded."""
+    if dimensions == 2:
+        basis = np.array([[1.0, 0.0], [0.5, math.sqrt(3) / 2]])
+    else:
+        basis = np.array([[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 0.0]]) / math.sqrt(2)
+    reach = int(math.ceil(2 * radius)) + 1
+    axis = np.arange(-reach, reach + 1)
+    index = np.stack(np.meshgrid(*[axis] * dimensions, indexing='ij'), -1).reshape(-1, dimensions)
+    dist = np.linalg.norm(index @ basis, axis=-1)
+    return int(((dist > 0) & (dist <= radius + 1e-9)).sum())
+
+
+def _pair_sample(p: np.ndarray) -> np.ndarray:
+    """Distances between distinct robots of frames ``p [F, n, dim]`` (at most ~10^6 pairs)."""
+    p = p[:: max(1, p.shape[0] * p.shape[1] ** 2 // 1_000_000)]
+    d = np.linalg.norm(p[:, None, :, :] - p[:, :, None, :], axis=-1)
+    return d[:, ~np.eye(p.shape[1], dtype=bool)].ravel()
+
+
 def _gain_phi(limit: float, d0: float) -> float:
     """phi with lambda = phi^2 such that the continuous push lambda (1/d - 1/d0) / d^2 at
     d = d0 / 2 is half the command limit: lambda = limit d0^3 / 8."""
@@ -117,21 +145,46 @@ def derive(
         record[dotted] = {'value': value, 'how': how}
 
     median_nn = float(np.median(nn))
-    put(
-        'policy.d_cr',
-        round(3.0 * median_nn, 6),
-        f'3 x the median nearest-neighbour distance ({median_nn:.4g})',
-    )
+    set_encoder = pol.get('encoder', 'flat') == 'set'
+    if set_encoder:
+        pairs = np.concatenate([_pair_sample(p) for p in pos])
+        q99_pair = float(np.quantile(pairs, 0.99))
+        put(
+            'policy.d_cr',
+            round(max(q99_pair, 3.0 * median_nn), 6),
+            f'the 99th percentile of the distances between robots ({q99_pair:.4g}), at least 3 x the '
+            f'median nearest-neighbour distance ({median_nn:.4g}): the set encoder sees (almost) the '
+            'whole observed swarm and learns how far interactions reach (its inputs hold the distance)',
+        )
+    else:
+        put(
+            'policy.d_cr',
+            round(3.0 * median_nn, 6),
+            f'3 x the median nearest-neighbour distance ({median_nn:.4g})',
+        )
     d_cr = float(pol['d_cr'])
     n_min = min(f.shape[1] for f in frames)
     counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
     q90 = float(np.quantile(counts, 0.9))
-    put(
-        'policy.k',
-        int(min(max(2, 1 + math.ceil(q90)), n_min)),
-        f'1 + the 90th percentile of the number of robots within d_cr = {d_cr:.4g} ({q90:g}), '
-        f'in [2, {n_min}] (the smallest swarm)',
-    )
+    if set_encoder:
+        packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
+        seen = int(counts.max())
+        put(
+            'policy.k',
+            int(min(max(2, 1 + min(packed, DENSER * seen)), 1024)),
+            f'1 + the smaller of the {packed} robots within d_cr = {d_cr:.4g} of a robot of a '
+            f'close-packed {"hexagonal" if spec.dimensions == 2 else "fcc"} lattice at the median '
+            f'nearest-neighbour distance ({median_nn:.4g}) and {DENSER} x the most robots the data show '
+            f'within d_cr ({seen}): room for larger, denser swarms than the data (the set encoder '
+            'has no weight per row)',
+        )
+    else:
+        put(
+            'policy.k',
+            int(min(max(2, 1 + math.ceil(q90)), n_min)),
+            f'1 + the 90th percentile of the number of robots within d_cr = {d_cr:.4g} ({q90:g}), '
+            f'in [2, {n_min}] (the smallest swarm)',
+        )
     u = _implied_commands(trajectories, spec, dt)
     q99 = float(np.quantile(u, 0.99)) if u.size else 0.0
     vel = _velocity_entries(frames, trajectories, spec, dt)

@@ -241,8 +241,12 @@ class Trainer:
         rng = np.random.default_rng(cfg['seed'])
         t0 = time.perf_counter()
         self.splits, train_parts, val_parts = [], [], []
-        for path in paths:
-            data = self._load(path)
+        datas = [self._load(path) for path in paths]
+        rows = pc['k']
+        if pc.get('encoder', 'flat') == 'set':
+            # the set encoder has no weight per row: rows beyond the largest swarm are always masked
+            rows = min(rows, max(int(np.asarray(d.states).shape[-2]) for d in datas))
+        for path, data in zip(paths, datas):
             split = split_data(cfg, data, log)
             if split['train'].shape[1] <= self.ratio:
                 raise DataError(
@@ -255,7 +259,7 @@ class Trainer:
                     split['train'],
                     self.spec,
                     pc['d_cr'],
-                    pc['k'],
+                    rows,
                     pc['tau'],
                     cfg['data']['stride'],
                     obs_std,
@@ -265,7 +269,7 @@ class Trainer:
             )
             if len(split['val']):
                 val_parts.append(
-                    make_samples(split['val'], self.spec, pc['d_cr'], pc['k'], pc['tau'], 1, ratio=self.ratio)
+                    make_samples(split['val'], self.spec, pc['d_cr'], rows, pc['tau'], 1, ratio=self.ratio)
                 )
         self.split = self.splits[0]
         self.train = concat_samples(train_parts)

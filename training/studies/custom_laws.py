@@ -6,6 +6,7 @@ your own").
     python -m training.studies.custom_laws --out runs/laws                     # all three laws
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
     python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 2 --rate 120
+    python -m training.studies.custom_laws --out runs/set --set policy.encoder=set --starts 32
 
 With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
 positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
@@ -184,15 +185,20 @@ def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
             args.noise_mm / 1000,
             args.rate,
         )
+    elif args.evaluate_only and os.path.isfile(os.path.join(folder, 'run', 'policy.pt')):
+        csvs = []  # the tracks and the policy are there already
     else:
         csvs = write_tracks(law, os.path.join(folder, 'csv'), args.trajectories, 10, args.seed)
     data = os.path.join(folder, 'tracks.npz')
-    _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
     run_dir = os.path.join(folder, 'run')
-    train = ['training.train', '--config', args.config, '--data', data, '--out', run_dir, '--no-progress']
-    train += ['--set', f'training.max_minutes={args.max_minutes}']
     t0 = time.perf_counter()
-    _run(train, log)
+    if not (args.evaluate_only and os.path.isfile(os.path.join(run_dir, 'policy.pt'))):
+        _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
+        train = ['training.train', '--config', args.config, '--data', data, '--out', run_dir, '--no-progress']
+        train += ['--set', f'training.max_minutes={args.max_minutes}']
+        for item in args.set or []:
+            train += ['--set', item]
+        _run(train, log)
     train_s = time.perf_counter() - t0
     load = os.getloadavg()
     result: Dict[str, Any] = {
@@ -206,7 +212,7 @@ def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
             os.path.join(run_dir, 'policy.pt'),
             os.path.join(folder, f'eval_n{robots}'),
             robots,
-            8,
+            args.starts,
             args.seed + 1000,
         )
         result[f'n{robots}'] = r
@@ -214,7 +220,7 @@ def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
     lines = [f'# {law.name}: learnt (config/train_custom.yaml) against the law', '']
     lines.append(f'- training {train_s:.0f} s wall clock, load average after it {load[0]:.1f}')
     for robots in args.eval_robots:
-        lines += ['', f'## {robots} robots, 8 held-out starts', ''] + order_lines(
+        lines += ['', f'## {robots} robots, {args.starts} held-out starts', ''] + order_lines(
             result[f'n{robots}']['orders']
         )
     with open(os.path.join(folder, 'summary.md'), 'w') as fh:
@@ -242,6 +248,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     )
     parser.add_argument('--rate', type=float, default=120.0, help='sample rate of the noisy recording, Hz')
     parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
+    parser.add_argument('--starts', type=int, default=8, help='held-out starts per swarm size')
+    parser.add_argument(
+        '--set', action='append', metavar='KEY=VALUE', help='a recipe field for training (repeatable)'
+    )
+    parser.add_argument(
+        '--evaluate-only', action='store_true', help='reuse OUT/LAW/run/policy.pt where it exists'
+    )
     args = parser.parse_args(argv)
     flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
     if args.noise_mm is not None and flat:
