@@ -61,7 +61,8 @@ def test_the_exact_tracks_of_a_law_import_as_the_law(tmp_path):
 
 def test_several_noise_levels_rates_and_seeds_in_one_call_resume_and_compare(tmp_path, monkeypatch):
     """custom_laws --noise-mm 0 5 --rate 30 --train-seeds 0 1: one folder per case, one run per seed,
-    the import against the law, a table paired against 0 mm; the same call again redoes nothing."""
+    the import against the law, a table paired against 0 mm; the same call again redoes nothing, and
+    --report only gathers what has run."""
     import yaml
 
     from training.studies import custom_laws
@@ -107,3 +108,21 @@ def test_several_noise_levels_rates_and_seeds_in_one_call_resume_and_compare(tmp
     after = {p: p.stat().st_mtime_ns for p in out.rglob('*') if p.suffix in ('.pt', '.npz', '.csv')}
     assert after == before
     assert json.loads((out / 'results.json').read_text()) == results
+    # --report trains nothing: the seeds and noise levels not run are left out
+    report = argv[:-10] + [
+        '--noise-mm',
+        '0',
+        '5',
+        '10',
+        '--rate',
+        '30',
+        '60',
+        '--train-seeds',
+        '0',
+        '2',
+        '--report',
+    ]
+    assert custom_laws.main(report + ['--eval-robots', '4']) == 0
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ['mill2d_0mm_30hz', 'mill2d_5mm_30hz']
+    assert not (out / 'mill2d_0mm_30hz' / 'run_seed2').exists()
+    assert len((out / 'mill2d_noise.md').read_text().splitlines()) == 2 + 1 + 2  # seed 0 only

@@ -178,14 +178,20 @@ def _recipe_seed(config: str) -> int:
         return int((yaml.safe_load(fh) or {}).get('seed', 0))
 
 
-def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) -> Dict[str, Any]:
+def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) -> Optional[Dict[str, Any]]:
     """One training on ``data`` and its evaluation: ``run/`` with the recipe's seed, ``run_seedK/``
-    with another; a step whose output exists is skipped, so a killed study resumes."""
+    with another; a step whose output exists is skipped, so a killed study resumes. With
+    ``--report``, None where the training or an evaluation has not run."""
     tail = '' if seed == _recipe_seed(args.config) else f'_seed{seed}'
     run_dir = os.path.join(folder, 'run' + tail)
     policy = os.path.join(run_dir, 'policy.pt')
     record = os.path.join(folder, f'training{tail}.json')
     trained = not (os.path.exists(policy) and os.path.exists(record))
+    evaluated = [
+        os.path.exists(os.path.join(folder, f'eval_n{n}{tail}', 'results.json')) for n in args.eval_robots
+    ]
+    if args.report and (trained or not all(evaluated)):
+        return None
     if trained:
         train = ['training.train', '--config', args.config, '--data', data, '--out', run_dir, '--no-progress']
         train += ['--set', f'training.max_minutes={args.max_minutes}']
@@ -227,16 +233,18 @@ def _read_json(path: str) -> Dict[str, Any]:
 
 def run_law(
     law: Law, out: str, args, log=print, noise_mm: Optional[float] = None, rate: float = 120.0
-) -> Dict[str, Any]:
+) -> Optional[Dict[str, Any]]:
     """One law (``noise_mm`` None: its exact tracks) or one recording of it: tracks, import, one
     training per ``--train-seeds`` (the recipe's seed without) and their evaluations."""
     noisy = noise_mm is not None
     folder = os.path.join(out, f'{law.name}_{noise_mm:g}mm_{rate:g}hz' if noisy else law.name)
+    data = os.path.join(folder, 'tracks.npz')
+    if args.report and not os.path.exists(data):
+        return None
     os.makedirs(folder, exist_ok=True)
     scenario = os.path.join(folder, 'scenario.yaml')
     with open(scenario, 'w') as fh:
         yaml.safe_dump(law.scenario.to_dict(), fh, sort_keys=False)
-    data = os.path.join(folder, 'tracks.npz')
     if not os.path.exists(data):
         csv_dir = os.path.join(folder, 'csv')
         if noisy:
@@ -245,7 +253,9 @@ def run_law(
             csvs = write_tracks(law, csv_dir, args.trajectories, 10, args.seed)
         _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
     seeds = args.train_seeds or [_recipe_seed(args.config)]
-    results = [_train_and_evaluate(law, folder, data, seed, args, log) for seed in seeds]
+    results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
+    if not results:
+        return None
     result = dict(results[0])
     if noisy:
         imp = import_against_law(law, data, args.trajectories, 10, args.seed)
@@ -314,6 +324,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         help="one training per seed on each import (default the recipe's seed)",
     )
     parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
+    parser.add_argument(
+        '--report',
+        action='store_true',
+        help='import and train nothing: rewrite results.json and the noise table and figure from '
+        'the cases and seeds already run, leaving out the others',
+    )
     args = parser.parse_args(argv)
     flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
     if args.noise_mm is not None and flat:
@@ -324,15 +340,21 @@ def main(argv: Optional[List[str]] = None) -> int:
     results: Dict[str, Any] = {}
     for name in args.laws:
         if args.noise_mm is None:
-            results[name] = run_law(LAWS[name], args.out, args)
+            r = run_law(LAWS[name], args.out, args)
+            if r is not None:
+                results[name] = r
             write_json(os.path.join(args.out, 'results.json'), results)
             continue
         for rate in args.rate:
             for noise_mm in args.noise_mm:
                 r = run_law(LAWS[name], args.out, args, noise_mm=noise_mm, rate=rate)
+                if r is None:
+                    continue
                 results[f'{name}_{noise_mm:g}mm_{rate:g}hz'] = r
                 write_json(os.path.join(args.out, 'results.json'), results)
                 cases = _noise_cases({k: v for k, v in results.items() if v['law'] == name})
+                if not cases:
+                    continue
                 robots = args.eval_robots[0]
                 with open(os.path.join(args.out, f'{name}_noise.md'), 'w') as fh:
                     fh.write(noise_table(cases, robots))

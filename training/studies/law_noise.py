@@ -110,7 +110,7 @@ def noise_table(cases: List[Dict[str, Any]], robots: int = 10) -> str:
         r = c['eval'][key]
         if len(lines) == 2:  # the law from the same held-out starts, whatever the case
             cells = [
-                f'{np.mean(_per_start(r, n, "observed")):.3g} ± {np.std(_per_start(r, n, "observed")):.2g}'
+                f'{np.mean(_per_start(r, n, "observed")):.3g} ± {np.std(_per_start(r, n, "observed"), ddof=1):.2g}'
                 for n, _ in ORDERS
             ]
             lines.append(
@@ -125,7 +125,9 @@ def noise_table(cases: List[Dict[str, Any]], robots: int = 10) -> str:
             f'{imp["position_rms"] * 1e3:.2g}',
             f'{imp["velocity_rms"] * 1e3:.3g}',
         ]
-        cells += [f'{np.mean(_per_start(r, n)):.3g} ± {np.std(_per_start(r, n)):.2g}' for n, _ in ORDERS]
+        cells += [
+            f'{np.mean(_per_start(r, n)):.3g} ± {np.std(_per_start(r, n), ddof=1):.2g}' for n, _ in ORDERS
+        ]
         for n, _ in ORDERS:
             learnt, law = r['orders'][n]['learnt']['mean'], r['orders'][n]['observed']['mean']
             cells.append(
@@ -161,7 +163,7 @@ def noise_figure(
         sel = sorted(
             (c for c in cases if (c['rate'], c['seed']) == (rate, seed)), key=lambda c: c['noise_mm']
         )
-        # the noise axis is symlog-like: 0 mm is drawn at 0.2 mm
+        # a log noise axis, 0 mm drawn at 0.2 mm; the groups side by side
         x = np.array([max(c['noise_mm'], 0.2) for c in sel]) * (1 + 0.03 * (j - len(groups) / 2))
         for ax, (name, label) in zip(axes, ORDERS):
             values = [_per_start(c['eval'][key], name) for c in sel]
@@ -176,7 +178,10 @@ def noise_figure(
             )
     for ax, (name, label) in zip(axes, ORDERS):
         ax.axhline(cases[0]['eval'][key]['orders'][name]['observed']['mean'], ls=':', c='k', label='the law')
-        ax.set(xscale='log', xlabel='position noise (mm; 0 drawn at 0.2)', ylabel=label)
+        ax.set(xscale='log', xlabel='position noise (mm)', ylabel=label)
+        levels = sorted({c['noise_mm'] for c in cases})
+        ax.set_xticks([max(x, 0.2) for x in levels], [f'{x:g}' for x in levels])
+        ax.minorticks_off()
     axes[0].legend(fontsize=7)
     if title:
         fig.suptitle(title)
