@@ -5,12 +5,22 @@ your own").
 
     python -m training.studies.custom_laws --out runs/laws                     # all three laws
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
-    python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 2 --rate 120
+    python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 0 2 10 \
+        --rate 30 120 --train-seeds 0 1 --eval-robots 10
     python -m training.studies.custom_laws --out runs/set --set policy.encoder=set --starts 32
 
 With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
 positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
-importer's smoother derives the velocities from noisy poses; the folder is then ``OUT/LAW_Nmm_RHz``.
+importer's smoother derives the velocities from noisy poses; the folder is then ``OUT/LAW_Nmm_RHz``,
+one per noise level and rate, and ``OUT/LAW_noise.md`` / ``OUT/LAW_noise.png`` compare them
+(:mod:`training.studies.law_noise`: the import against the law, the order parameters against the
+law and, per held-out start, against the 0-mm recording of the same rate and seed).
+``--train-seeds`` trains once per seed on each import (``run_seedK/``, ``eval_nN_seedK/``; the
+recipe's own seed keeps ``run/``).
+
+A step whose output exists is skipped (the tracks once imported, a training with its
+``training.json``, an evaluation of it), so the same command resumes a killed study or extends it
+by more cases or seeds.
 
 Per law under ``OUT/LAW/``: ``scenario.yaml``, ``csv/run_*.csv`` (10 robots, written by the law's
 simulator), ``tracks.npz`` (the import), ``run/`` (the training run), ``eval_n10``/``eval_n30``
@@ -24,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import subprocess
 import sys
@@ -35,11 +46,13 @@ import yaml
 
 from knode_swarm_ros.core import load_policy
 from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.errors import KnodeError
 from training.assessment.order import compare_orders, order_figure, order_lines
 from training.assessment.scores import rollout_policy
 from training.learning.config import load_config
 from training.learning.records import write_json
 
+from .law_noise import import_against_law, law_at, noise_figure, noise_table
 from .laws import LAWS, Law, initial_states, simulate
 
 GOALS = {10: (0.15, 0.10), 30: (0.25, 0.15)}  # robots -> (relative nn error, order parameter error)
@@ -85,19 +98,13 @@ def write_noisy_tracks(
         raise ValueError(f'{law.name}: positions only; the noisy recording needs a velocity state')
     d = spec.dimensions
     states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)  # [S, T+1, n, 2d]
-    p, v = states[..., :d], states[..., d:]
     times = np.arange(0.0, law.steps * spec.dt, 1.0 / rate_hz)
-    k = np.minimum((times / spec.dt).astype(int), law.steps - 1)
-    s = (times / spec.dt - k)[:, None, None]
-    # cubic Hermite on positions and velocities: exact for the zero-order hold's quadratic steps
-    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
     rng = np.random.default_rng(seed + 7919)
     axes = 'xyz'[:d]
     os.makedirs(folder, exist_ok=True)
     paths = []
     for e in range(trajectories):
-        pe, ve = p[e], v[e]
-        pos = h00 * pe[k] + h10 * spec.dt * ve[k] + h01 * pe[k + 1] + h11 * spec.dt * ve[k + 1]
+        pos = law_at(law, states[e], times)[0]
         pos = pos + rng.normal(0.0, noise_m, pos.shape)
         stamps = times[:, None] + rng.normal(0.0, jitter_s, (len(times), robots))
         kept = rng.random((len(times), robots)) >= drop
@@ -168,64 +175,121 @@ def evaluate_law(law: Law, policy_path: str, out: str, robots: int, starts: int,
     return result
 
 
-def run_law(law: Law, out: str, args, log=print) -> Dict[str, Any]:
-    noisy = args.noise_mm is not None
-    folder = os.path.join(out, f'{law.name}_{args.noise_mm:g}mm_{args.rate:g}hz' if noisy else law.name)
-    os.makedirs(folder, exist_ok=True)
-    scenario = os.path.join(folder, 'scenario.yaml')
-    with open(scenario, 'w') as fh:
-        yaml.safe_dump(law.scenario.to_dict(), fh, sort_keys=False)
-    if noisy:
-        csvs = write_noisy_tracks(
-            law,
-            os.path.join(folder, 'csv'),
-            args.trajectories,
-            10,
-            args.seed,
-            args.noise_mm / 1000,
-            args.rate,
-        )
-    elif args.evaluate_only and os.path.isfile(os.path.join(folder, 'run', 'policy.pt')):
-        csvs = []  # the tracks and the policy are there already
-    else:
-        csvs = write_tracks(law, os.path.join(folder, 'csv'), args.trajectories, 10, args.seed)
-    data = os.path.join(folder, 'tracks.npz')
-    run_dir = os.path.join(folder, 'run')
-    t0 = time.perf_counter()
-    if not (args.evaluate_only and os.path.isfile(os.path.join(run_dir, 'policy.pt'))):
-        _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
+def _recipe_seed(config: str) -> int:
+    with open(config) as fh:
+        return int((yaml.safe_load(fh) or {}).get('seed', 0))
+
+
+def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) -> Optional[Dict[str, Any]]:
+    """One training on ``data`` and its evaluation: ``run/`` with the recipe's seed, ``run_seedK/``
+    with another; a step whose output exists is skipped, so a killed study resumes. With
+    ``--report``, None where the training or an evaluation has not run."""
+    tail = '' if seed == _recipe_seed(args.config) else f'_seed{seed}'
+    run_dir = os.path.join(folder, 'run' + tail)
+    policy = os.path.join(run_dir, 'policy.pt')
+    record = os.path.join(folder, f'training{tail}.json')
+    trained = not (os.path.exists(policy) and os.path.exists(record))
+    evaluated = [
+        os.path.exists(os.path.join(folder, f'eval_n{n}{tail}', 'results.json')) for n in args.eval_robots
+    ]
+    if args.report and (trained or not all(evaluated)):
+        return None
+    if args.evaluate_only and trained:
+        raise KnodeError(f'--evaluate-only: no trained policy in {run_dir} (its policy.pt and {record})')
+    if trained:
         train = ['training.train', '--config', args.config, '--data', data, '--out', run_dir, '--no-progress']
         train += ['--set', f'training.max_minutes={args.max_minutes}']
+        train += ['--set', f'seed={seed}'] if tail else []
         for item in args.set or []:
             train += ['--set', item]
+        train += ['--overwrite'] if os.path.exists(run_dir) else []  # a killed training starts again
+        load0, t0 = os.getloadavg()[0], time.perf_counter()
         _run(train, log)
-    train_s = time.perf_counter() - t0
-    load = os.getloadavg()
-    result: Dict[str, Any] = {
-        'law': law.name,
-        'train_wall_seconds': round(train_s, 1),
-        'load_after_training': load,
-    }
-    for robots in args.eval_robots:
-        r = evaluate_law(
-            law,
-            os.path.join(run_dir, 'policy.pt'),
-            os.path.join(folder, f'eval_n{robots}'),
-            robots,
-            args.starts,
-            args.seed + 1000,
+        write_json(
+            record,
+            {'train_wall_seconds': round(time.perf_counter() - t0, 1), 'load': [load0, os.getloadavg()[0]]},
         )
+    result: Dict[str, Any] = {'law': law.name, 'seed': seed, **_read_json(record)}
+    result['load_after_training'] = result['load'][1]
+    for robots in args.eval_robots:
+        out = os.path.join(folder, f'eval_n{robots}{tail}')
+        if not trained and not args.evaluate_only and os.path.exists(os.path.join(out, 'results.json')):
+            r = _read_json(os.path.join(out, 'results.json'))
+        else:
+            r = evaluate_law(law, policy, out, robots, args.starts, args.seed + 1000)
         result[f'n{robots}'] = r
-        log(f'{law.name}, {robots} robots: ' + ', '.join(f'{k}={v}' for k, v in r['goals'].items()))
+        log(f'{law.name}{tail}, {robots} robots: ' + ', '.join(f'{k}={v}' for k, v in r['goals'].items()))
     lines = [f'# {law.name}: learnt (config/train_custom.yaml) against the law', '']
-    lines.append(f'- training {train_s:.0f} s wall clock, load average after it {load[0]:.1f}')
+    lines.append(
+        f'- training {result["train_wall_seconds"]:.0f} s wall clock, load average after it {result["load"][1]:.1f}'
+    )
     for robots in args.eval_robots:
         lines += ['', f'## {robots} robots, {args.starts} held-out starts', ''] + order_lines(
             result[f'n{robots}']['orders']
         )
-    with open(os.path.join(folder, 'summary.md'), 'w') as fh:
+    with open(os.path.join(folder, f'summary{tail}.md'), 'w') as fh:
         fh.write('\n'.join(lines) + '\n')
     return result
+
+
+def _read_json(path: str) -> Dict[str, Any]:
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def run_law(
+    law: Law, out: str, args, log=print, noise_mm: Optional[float] = None, rate: float = 120.0
+) -> Optional[Dict[str, Any]]:
+    """One law (``noise_mm`` None: its exact tracks) or one recording of it: tracks, import, one
+    training per ``--train-seeds`` (the recipe's seed without) and their evaluations."""
+    noisy = noise_mm is not None
+    folder = os.path.join(out, f'{law.name}_{noise_mm:g}mm_{rate:g}hz' if noisy else law.name)
+    data = os.path.join(folder, 'tracks.npz')
+    if args.report and not os.path.exists(data):
+        return None
+    os.makedirs(folder, exist_ok=True)
+    scenario = os.path.join(folder, 'scenario.yaml')
+    with open(scenario, 'w') as fh:
+        yaml.safe_dump(law.scenario.to_dict(), fh, sort_keys=False)
+    if not os.path.exists(data):
+        csv_dir = os.path.join(folder, 'csv')
+        if noisy:
+            csvs = write_noisy_tracks(law, csv_dir, args.trajectories, 10, args.seed, noise_mm / 1000, rate)
+        else:
+            csvs = write_tracks(law, csv_dir, args.trajectories, 10, args.seed)
+        _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
+    seeds = args.train_seeds or [_recipe_seed(args.config)]
+    results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
+    if not results:
+        return None
+    result = dict(results[0])
+    if noisy:
+        imp = import_against_law(law, data, args.trajectories, 10, args.seed)
+        log(
+            f'{os.path.basename(folder)}: noise estimate {imp["noise_estimate"] * 1e3:.3g} mm, import against '
+            f'the law: positions {imp["position_rms"] * 1e3:.3g} mm, velocities {imp["velocity_rms"] * 1e3:.3g} mm/s rms'
+        )
+        result.update(noise_mm=noise_mm, rate=rate, seeds=results, **{'import': imp})
+    return result
+
+
+def _noise_cases(results: Dict[str, Any]) -> List[Dict[str, Any]]:
+    """The rows of :func:`law_noise.noise_table`: one per recording and training seed."""
+    rows = []
+    for r in results.values():
+        for s in r.get('seeds', []):
+            rows.append(
+                {
+                    'noise_mm': r['noise_mm'],
+                    'rate': r['rate'],
+                    'seed': s['seed'],
+                    'import': r['import'],
+                    'eval': s,
+                    'train_seconds': s['train_wall_seconds'],
+                    'load': s['load'],
+                }
+            )
+    return rows
 
 
 @cli('python -m training.studies.custom_laws')
@@ -244,26 +308,77 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--max-minutes', type=float, default=10.0, help='training.max_minutes of each run')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument(
-        '--noise-mm', type=float, default=None, help='record the law as a mocap system: noise std, mm'
+        '--noise-mm',
+        type=float,
+        nargs='+',
+        default=None,
+        help='record the law as a mocap system: noise std, mm (several: one case each)',
     )
-    parser.add_argument('--rate', type=float, default=120.0, help='sample rate of the noisy recording, Hz')
+    parser.add_argument(
+        '--rate',
+        type=float,
+        nargs='+',
+        default=[120.0],
+        help='sample rate of the noisy recording, Hz (several: each with every --noise-mm)',
+    )
+    parser.add_argument(
+        '--train-seeds',
+        type=int,
+        nargs='+',
+        default=None,
+        metavar='SEED',
+        help="one training per seed on each import (default the recipe's seed)",
+    )
     parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
     parser.add_argument('--starts', type=int, default=8, help='held-out starts per swarm size')
     parser.add_argument(
         '--set', action='append', metavar='KEY=VALUE', help='a recipe field for training (repeatable)'
     )
     parser.add_argument(
-        '--evaluate-only', action='store_true', help='reuse OUT/LAW/run/policy.pt where it exists'
+        '--evaluate-only',
+        action='store_true',
+        help='train nothing: evaluate the trained policies again (with --starts)',
+    )
+    parser.add_argument(
+        '--report',
+        action='store_true',
+        help='import and train nothing: rewrite results.json and the noise table and figure from '
+        'the cases and seeds already run, leaving out the others',
     )
     args = parser.parse_args(argv)
     flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
     if args.noise_mm is not None and flat:
         parser.error(f'--noise-mm needs a velocity state; {", ".join(flat)} has positions only')
+    if args.noise_mm is not None and (min(args.noise_mm) < 0 or min(args.rate) <= 0):
+        parser.error(f'--noise-mm must be >= 0 and --rate > 0, got {args.noise_mm} and {args.rate}')
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
-    results = {}
+    results: Dict[str, Any] = {}
     for name in args.laws:
-        results[name] = run_law(LAWS[name], args.out, args)
-        write_json(os.path.join(args.out, 'results.json'), results)
+        if args.noise_mm is None:
+            r = run_law(LAWS[name], args.out, args)
+            if r is not None:
+                results[name] = r
+            write_json(os.path.join(args.out, 'results.json'), results)
+            continue
+        for rate in args.rate:
+            for noise_mm in args.noise_mm:
+                r = run_law(LAWS[name], args.out, args, noise_mm=noise_mm, rate=rate)
+                if r is None:
+                    continue
+                results[f'{name}_{noise_mm:g}mm_{rate:g}hz'] = r
+                write_json(os.path.join(args.out, 'results.json'), results)
+                cases = _noise_cases({k: v for k, v in results.items() if v['law'] == name})
+                if not cases:
+                    continue
+                robots = args.eval_robots[0]
+                with open(os.path.join(args.out, f'{name}_noise.md'), 'w') as fh:
+                    fh.write(noise_table(cases, robots))
+                noise_figure(
+                    cases,
+                    os.path.join(args.out, f'{name}_noise.png'),
+                    robots,
+                    f'{name}: learnt from noisy recordings, {robots} robots, {args.starts} held-out starts',
+                )
     return 0
 
 
