@@ -62,6 +62,7 @@ class StateInbox:
     def __init__(self, context, fleet: Fleet, depth: int, name: str = 'state_inbox'):
         self.fleet = fleet
         self.msg_type = STATE_MESSAGES[fleet.state.type]
+        self.depth = int(depth)
         self.malformed = 0  # bytes that are not a message of the state type
         self.foreign = 0  # an Odometry whose child_frame_id is another robot's
         # The process's remappings apply (topics, namespace) but not a node name given to the
@@ -75,58 +76,61 @@ class StateInbox:
         )
         profile = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
-            depth=int(depth),
+            depth=self.depth,
             reliability=qos.ODOM.reliability,
             durability=qos.ODOM.durability,
         )
         odometry = fleet.state.type == 'odometry'
         try:
-            # per robot: id, subscription, decoder (Odometry), the child_frame_id last found its own
-            self._robots = [
-                [
-                    int(rid),
-                    self.node.create_subscription(
-                        self.msg_type, fleet.state_topic(rid), _never_called, profile, raw=True
-                    ),
-                    OdomStream() if odometry else None,
-                    None,
-                ]
+            self.subscriptions = [
+                self.node.create_subscription(
+                    self.msg_type, fleet.state_topic(rid), _never_called, profile, raw=True
+                )
                 for rid in fleet.ids
             ]
         except BaseException:  # a signal or a bad topic: the node's handle must not outlive us
             self.node.destroy_node()
             raise
+        # per robot: id, the subscription's handle, decoder (Odometry), the child_frame_id last
+        # found its own
+        self._robots = [
+            [int(rid), sub.handle, OdomStream() if odometry else None, None]
+            for rid, sub in zip(fleet.ids, self.subscriptions)
+        ]
 
     def take(self) -> Taken:
-        """Every message queued since the last call, decoded (see the module doc)."""
+        """Every message queued since the last call, decoded (see the module doc).
+
+        Call it from the thread that destroys the inbox (the takes skip rclpy's guard against a
+        handle destroyed meanwhile, which costs as much as a take)."""
         robots, stamps, poses, linears = [], [], [], []
-        msg_type = self.msg_type
+        msg_type, depth = self.msg_type, self.depth
         for entry in self._robots:
-            rid, sub, stream, own = entry
-            handle = sub.handle
-            with handle:
-                while True:
-                    got = handle.take_message(msg_type, True)
-                    if got is None:
-                        break
-                    try:
-                        if stream is not None:
-                            ns, child, pose, linear = stream.read(got[0])
-                            if child != own:
-                                if not self.fleet.owns_frame(child, rid):
-                                    self.foreign += 1
-                                    continue
-                                entry[3] = own = child
-                        else:
-                            ns, _, pose = pose_from_cdr(got[0])
-                            linear = _NO_TWIST
-                    except CdrError:
-                        self.malformed += 1
-                        continue
-                    robots.append(rid)
-                    stamps.append(ns)
-                    poses.append(pose)
-                    linears.append(linear)
+            rid, handle, stream, own = entry
+            # At most ``depth`` are queued: no take that can only come back empty (a message
+            # arriving meanwhile waits for the next call).
+            for _ in range(depth):
+                got = handle.take_message(msg_type, True)
+                if got is None:
+                    break
+                try:
+                    if stream is not None:
+                        ns, child, pose, linear = stream.read(got[0])
+                        if child != own:
+                            if not self.fleet.owns_frame(child, rid):
+                                self.foreign += 1
+                                continue
+                            entry[3] = own = child
+                    else:
+                        ns, _, pose = pose_from_cdr(got[0])
+                        linear = _NO_TWIST
+                except CdrError:
+                    self.malformed += 1
+                    continue
+                robots.append(rid)
+                stamps.append(ns)
+                poses.append(pose)
+                linears.append(linear)
         pose = np.array(poses, dtype=np.float64).reshape(-1, 7)
         return Taken(
             robots=np.array(robots, dtype=np.int64),
