@@ -76,11 +76,11 @@ class MonitorNode(Node):
             f'rows of Y_i, the robot included (0: the policy default, {default_k})',
             int_range=(0, 10_000),
         )
-        rate = declare(self, 'rate', 15.0, 'ticks (page updates) per wall second', float_range=(0.1, 100.0))
+        rate = declare(self, 'rate', 12.0, 'ticks (page updates) per wall second', float_range=(0.1, 100.0))
         figures_rate = declare(
             self,
             'figures_rate',
-            5.0,
+            2.0,
             'links and metrics (page, monitor/metrics) per wall second, at most one a tick',
             float_range=(0.1, 100.0),
         )
