@@ -79,6 +79,54 @@ def test_health_stale_lost_unheard_and_diagnostics():
     assert all(5 not in link for link in snap.links.tolist())  # an unheard robot links nobody
 
 
+def test_receive_many_files_as_one_at_a_time_and_trails_keep_the_newest():
+    rng = np.random.default_rng(3)
+    robots = [4, 9, 2, 4, 4, 77, 9, 2]  # repeats, and 77: not a robot of this swarm
+    stamps = [5, 3, 8, 4, 6, 1, 3, 9]  # robot 4's stamp 4 is older than its 5: ignored
+    states = rng.normal(size=(8, 4))
+    states[6, 1] = np.nan  # not finite: ignored
+    one, many = (SwarmWatch('flock2d', [2, 4, 9], d_cr=2.5, k=3, trail=3, trail_every=0.2) for _ in range(2))
+    for walls in ([0.0], [0.1], [0.5, 0.8, 1.1, 1.4]):
+        for wall in walls:
+            filed_one = [one.receive(r, s * DT_NS, z, wall) for r, s, z in zip(robots, stamps, states)]
+            filed_many = many.receive_many(robots, np.array(stamps) * DT_NS, states, wall)
+            assert filed_many.tolist() == filed_one == [True, True, True, False, True, False, False, True]
+            for a, b in ((one.states, many.states), (one.stamps, many.stamps), (one.arrived, many.arrived)):
+                assert np.array_equal(a, b)
+            stamps = [s + 10 for s in stamps]
+    distinct = SwarmWatch('flock2d', [2, 4, 9], d_cr=2.5, k=3)  # one state per robot: at once
+    assert distinct.receive_many([9, 2], [DT_NS, DT_NS], states[:2], 1.0).tolist() == [True, True]
+    assert np.array_equal(distinct.states[[2, 0]], states[:2]) and distinct.stamps.tolist() == [
+        DT_NS,
+        -1,
+        DT_NS,
+    ]
+    # trails: a point per robot every 0.2 s at most (the first state filed then), the last 3
+    assert all(np.array_equal(a, b) for a, b in zip(one.trails(), many.trails()))
+    trail = many.trails()
+    assert [len(t) for t in trail] == [3, 3, 3]
+    assert np.array_equal(trail[1], np.repeat(states[:1, :2], 3, axis=0))  # robot 4's first each time
+    fresh = SwarmWatch('flock2d', [0], d_cr=2.5, k=3, trail=3, trail_every=0.2)
+    for t, wall in enumerate((0.0, 0.1, 0.25, 0.5, 0.75, 1.0)):
+        fresh.receive(0, t, np.array([t, -t, 0.0, 0.0]), wall)
+    assert fresh.trails()[0].tolist() == [[3, -3], [4, -4], [5, -5]]  # 0.1 s after 0.0: no point
+
+
+def test_a_tick_without_figures_carries_no_links_nor_metrics():
+    states = _states(6)
+    watch = _watch(states)
+    snap = watch.snapshot(wall=100.0, figures=False)
+    assert snap.links is None and snap.metrics is None
+    tick = decode_tick(tick_message(snap), 2)
+    assert tick['links'] is None and tick['metrics'] is None
+    np.testing.assert_allclose(tick['positions'], states[:, :2], atol=5e-4)
+    full = watch.snapshot(wall=100.0)
+    assert np.array_equal(snap.positions, full.positions) and snap.health == full.health
+    watch.diagnostics(0, 3)  # STALE from an agent: error
+    watch.diagnostics(1, 0)
+    assert watch.snapshot(wall=100.0, figures=False).health[:2] == ['error', 'ok']
+
+
 def test_messages_round_trip_and_the_pixel_mapping():
     states = _states(6)
     snap = _watch(states).snapshot(wall=100.0)

@@ -11,10 +11,12 @@ import math
 import numpy as np
 import pytest
 
+from knode_swarm_ros.core.scenarios import Scenario
 from knode_swarm_ros.logic.common import is_robot_frame, parse_robot_frame, robot_frame
 from knode_swarm_ros.logic.contract.rep105 import (
     TWIST_FRAMES,
     fields_to_state,
+    fields_to_states,
     rotate,
     rotate_inverse,
     state_to_fields,
@@ -92,6 +94,34 @@ def test_flock2d_mapping_is_exact_and_boids3d_twist_is_in_the_body_frame():
     with pytest.raises(ValueError, match='twist_frame'):
         fields_to_state((0, 0, 0), (0, 0, 0, 1), (1, 0, 0), 'flock2d', 'odom')
     assert TWIST_FRAMES == ('body', 'world')
+
+
+def test_fields_to_states_is_fields_to_state_bit_for_bit():
+    rng = np.random.default_rng(6)
+    m = 300
+    positions = rng.normal(size=(m, 3)) * 10
+    quaternions = rng.normal(size=(m, 4))
+    quaternions[:100] /= np.linalg.norm(quaternions[:100], axis=1, keepdims=True)  # unit
+    quaternions[100:110] = 0.0  # zero: the identity
+    quaternions[110] = (0.0, 0.0, 0.0, 1.0)
+    quaternions[111, 2] = np.nan
+    linears = rng.normal(size=(m, 3))
+    linears[112, 0] = np.inf
+    own = [  # every state kind, in 2D and 3D
+        Scenario('points3d', 3, 'position', 'velocity', 0.1, None),
+        Scenario('double3d', 3, 'position_velocity', 'acceleration', 0.01, None),
+        Scenario('unicycles2d', 2, 'position_heading', 'velocity', 0.05, None),
+    ]
+    for scenario in ['flock2d', 'boids3d', *own]:
+        for frame in TWIST_FRAMES:
+            one = np.array(
+                [fields_to_state(*f, scenario, frame) for f in zip(positions, quaternions, linears)]
+            )
+            many = fields_to_states(positions, quaternions, linears, scenario, frame)
+            assert many.shape == one.shape and np.array_equal(many, one, equal_nan=True), (scenario, frame)
+    assert fields_to_states(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), 'flock2d').shape == (0, 4)
+    with pytest.raises(ValueError, match='twist_frame'):
+        fields_to_states(positions, quaternions, linears, 'flock2d', 'odom')
 
 
 def test_child_frames_name_their_robot():

@@ -97,7 +97,7 @@ def test_the_monitor_reads_a_fleets_poses_and_estimates_their_velocities(ros, tm
             pub.publish(msg)
 
     def estimated():
-        monitor._decode_pending()
+        monitor._take_states()
         states = monitor.watch.states
         return sent[0] > 5 and all(
             np.allclose(states[i, 2:], velocity[rid], atol=1e-9) for i, rid in enumerate((4, 9))

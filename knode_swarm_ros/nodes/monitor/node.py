@@ -1,24 +1,25 @@
 """The ``monitor`` node: a live view of a simulated or real swarm.
 
 Reads what the agents read: ``robot_<i>/odom`` of robots 0 .. n-1, or the state topics and
-types of a fleet's robots (parameter ``fleet``), raw, as the recorder does: only each robot's
-newest Odometry is kept and decoded at the next tick; poses are all decoded at the next tick, so
-that the velocity estimate (the fleet's window, as the agents') sees the whole stream. And the
-agents' health on ``/diagnostics`` (``hardware_id``: the robot's name in the fleet, ``robot_<id>``
-without a fleet file). Every
-tick (``rate`` per wall second) it builds a :class:`~knode_swarm_ros.logic.monitor.Snapshot` and
-publishes it as ``monitor/metrics``
-(std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), as RViz markers on
+types of a fleet's robots (parameter ``fleet``), through a
+:class:`~knode_swarm_ros.nodes.common.state_inbox.StateInbox`: no callback per message, the
+messages queued since the last tick are taken and decoded at the tick (an Odometry: only each
+robot's newest is kept; poses: a tick's worth, so that the velocity estimate, the fleet's window
+as the agents', sees the whole stream). And the agents' health on ``/diagnostics``
+(``hardware_id``: the robot's name in the fleet, ``robot_<id>`` without a fleet file). Every tick (``rate`` per wall second) it
+builds a :class:`~knode_swarm_ros.logic.monitor.Snapshot` and sends it to the web page
+(``http://host:port/``, unless ``web`` is false); the links and the metrics, O(n^2) in the
+robots, are computed ``figures_rate`` times per second and published as ``monitor/metrics``
+(std_msgs/String, JSON: step, avd, amd, nnd, polarisation, robots by health), and as RViz markers on
 ``monitor/markers`` (``marker_rate`` per second, only while someone listens: robots coloured by
-health, headings, the Y_i links, trails) and to the web page (``http://host:port/``, unless
-``web`` is false). It publishes nothing the swarm reads: it can stop at any time.
+health, headings, the Y_i links, trails). It publishes nothing the swarm reads: it can stop at
+any time.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from functools import partial
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
@@ -30,6 +31,7 @@ from knode_swarm_ros.core.scenarios import get_scenario
 from knode_swarm_ros.logic.common import ConfigError, parse_robot_frame, status_json
 from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet
 from knode_swarm_ros.logic.contract.pose import PoseStates
+from knode_swarm_ros.logic.contract.rep105 import fields_to_states
 from knode_swarm_ros.logic.monitor import (
     METRICS_TOPIC,
     MONITOR_MARKERS_TOPIC,
@@ -41,16 +43,11 @@ from knode_swarm_ros.logic.monitor import (
     view_scale,
 )
 from knode_swarm_ros.nodes.common import qos
-from knode_swarm_ros.nodes.common.conversions import (
-    STATE_MESSAGES,
-    TWIST_FRAMES,
-    CdrError,
-    odom_from_cdr,
-    pose_from_cdr,
-)
+from knode_swarm_ros.nodes.common.conversions import TWIST_FRAMES
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.markers import swarm_markers
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, declare_scenario
+from knode_swarm_ros.nodes.common.state_inbox import StateInbox
 
 __all__ = ['MonitorNode', 'main']
 
@@ -79,8 +76,13 @@ class MonitorNode(Node):
             f'rows of Y_i, the robot included (0: the policy default, {default_k})',
             int_range=(0, 10_000),
         )
-        rate = declare(
-            self, 'rate', 15.0, 'ticks (metrics, page updates) per wall second', float_range=(0.1, 100.0)
+        rate = declare(self, 'rate', 12.0, 'ticks (page updates) per wall second', float_range=(0.1, 100.0))
+        figures_rate = declare(
+            self,
+            'figures_rate',
+            2.0,
+            'links and metrics (page, monitor/metrics) per wall second, at most one a tick',
+            float_range=(0.1, 100.0),
         )
         marker_rate = declare(
             self, 'marker_rate', 5.0, 'RViz markers per wall second (0: none)', float_range=(0.0, 100.0)
@@ -126,7 +128,6 @@ class MonitorNode(Node):
             lost_after=lost_after,
             trail=trail,
         )
-        self.pending = {}  # robot id -> [(serialized state, wall time it arrived)] (Odometry: the newest only)
         self.hello = None
         self.web = None
         if self.web_on:
@@ -150,45 +151,33 @@ class MonitorNode(Node):
                     f"parameters 'host' / 'port': cannot serve on {self.host}:{port}: {exc}"
                 ) from None
         self.marker_throttle = Throttle(marker_rate)
+        self.figures_throttle = Throttle(figures_rate)
         self.metrics_pub = self.create_publisher(String, METRICS_TOPIC, qos.STATUS)
         self.markers_pub = self.create_publisher(MarkerArray, MONITOR_MARKERS_TOPIC, qos.MARKERS)
-        state_type = STATE_MESSAGES[self.fleet.state.type]
-        self.subs = [
-            self.create_subscription(
-                state_type, self.fleet.state_topic(rid), partial(self._on_odom, rid), qos.ODOM, raw=True
-            )
-            for rid in self.fleet.ids
-        ]
+        # Odometry: only the newest matters; poses: all of them, the ODOM depth (2 s at 100 Hz)
+        self.inbox = StateInbox(
+            self.context, self.fleet, 1 if self.poses is None else qos.ODOM.depth, f'{self.get_name()}_inbox'
+        )
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, qos.DIAGNOSTICS)
         self.create_timer(1.0 / rate, self._on_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         where = f'; page at http://{self.host}:{self.web.port}/' if self.web else ''
         self.get_logger().info(f'watching {robots} robots ({self.spec.name}){where}')
 
-    def _on_odom(self, robot: int, data: bytes) -> None:
-        # Decoded at the next tick: the monitor's work follows its tick rate, not the swarm's
-        # publishing rate (an Odometry: only the newest is kept; poses: every one, for the estimate).
+    def _take_states(self) -> None:
+        """File every state the inbox holds, arrived (for health) at this tick's wall time."""
+        taken = self.inbox.take()
+        if not len(taken.robots):
+            return
         if self.poses is None:
-            self.pending[robot] = [(data, time.monotonic())]
+            states = fields_to_states(
+                taken.positions, taken.quaternions, taken.linears, self.spec, self.twist_frame
+            )
         else:
-            queue = self.pending.setdefault(robot, [])
-            if len(queue) < 1000:  # a stalled tick must not grow without bound
-                queue.append((data, time.monotonic()))
-
-    def _decode_pending(self) -> None:
-        pending, self.pending = self.pending, {}
-        for robot, queue in pending.items():
-            for data, wall in queue:
-                try:
-                    if self.poses is not None:
-                        stamp, _, pose = pose_from_cdr(data)
-                        z = self.poses.state(robot, stamp, pose[:3], pose[3:])
-                    else:
-                        stamp, frame, z = odom_from_cdr(data, self.scenario, self.twist_frame)
-                        if not self.fleet.owns_frame(frame, robot):
-                            continue
-                except CdrError:
-                    continue
-                self.watch.receive(robot, stamp, z, wall)
+            states = [
+                self.poses.state(int(rid), int(ns), pos, q)
+                for rid, ns, pos, q in zip(taken.robots, taken.stamps, taken.positions, taken.quaternions)
+            ]
+        self.watch.receive_many(taken.robots, taken.stamps, states, time.monotonic())
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -198,14 +187,16 @@ class MonitorNode(Node):
                 self.watch.diagnostics(robot, level[0] if isinstance(level, bytes) else int(level))
 
     def _on_tick(self) -> None:
-        self._decode_pending()
+        self._take_states()
         now = time.monotonic()
-        snap = self.watch.snapshot(now)
+        markers = self.marker_throttle.due(now) and self.markers_pub.get_subscription_count() > 0
+        snap = self.watch.snapshot(now, figures=self.figures_throttle.due(now) or markers)
         if snap.step is None:
             return
-        counts = {h: snap.health.count(h) for h in set(snap.health)}
-        self.metrics_pub.publish(String(data=status_json(step=snap.step, robots=counts, **snap.metrics)))
-        if self.marker_throttle.due(now) and self.markers_pub.get_subscription_count() > 0:
+        if snap.metrics is not None:
+            counts = {h: snap.health.count(h) for h in set(snap.health)}
+            self.metrics_pub.publish(String(data=status_json(step=snap.step, robots=counts, **snap.metrics)))
+        if markers:
             self.markers_pub.publish(
                 swarm_markers(
                     self.watch.states,
@@ -214,7 +205,7 @@ class MonitorNode(Node):
                     snap.stamp_ns,
                     links=snap.links,
                     health=snap.health,
-                    trails=snap.trails,
+                    trails=self.watch.trails(),
                 )
             )
         if self.web is not None:
@@ -229,6 +220,12 @@ class MonitorNode(Node):
     def close(self) -> None:
         if self.web is not None:
             self.web.stop()
+
+    def destroy_node(self):
+        inbox = getattr(self, 'inbox', None)  # a constructor cut short may not have made it yet
+        if inbox is not None:
+            inbox.destroy()
+        return super().destroy_node()
 
 
 def main(args=None):

@@ -1,0 +1,145 @@
+"""Robots' state messages taken when a node is ready for them, not one callback each.
+
+A node that looks at the robots' states once per tick of its own (the monitor: 15 ticks a
+second, against 4,000 Odometry a second from 200 robots at 20 Hz) need not wake its executor and
+run a Python callback for every message. The subscriptions of a :class:`StateInbox` belong to a
+node of their own that no executor spins: the middleware keeps each robot's last ``depth``
+messages, and :meth:`StateInbox.take` takes everything queued since the last call (the take of
+rclpy's executor, without the callback), decodes it and returns it as arrays: robot by robot in
+the fleet's order, each robot's messages oldest first.
+
+Decoded are the fields a state needs, as they are on the wire: the stamp, the position, the
+orientation and, for an Odometry, twist.linear (:class:`~.conversions.OdomStream`; a pose has
+no twist: zeros). The caller maps them to states (``rep105.fields_to_states``, or
+``PoseStates`` for poses). Dropped and counted: bytes that are not a message of the fleet's
+state type (:attr:`StateInbox.malformed`) and an Odometry whose ``child_frame_id`` is not the
+robot's own (:attr:`StateInbox.foreign`, ``Fleet.owns_frame``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
+
+from knode_swarm_ros.logic.contract.fleet import Fleet
+
+from . import qos
+from .conversions import STATE_MESSAGES, CdrError, OdomStream, pose_from_cdr
+
+__all__ = ['StateInbox', 'Taken']
+
+_NO_TWIST = (0.0, 0.0, 0.0)
+
+
+class Taken(NamedTuple):
+    """States' fields taken from the inbox, ``m`` messages."""
+
+    robots: np.ndarray  # [m] int64, the robots' ids
+    stamps: np.ndarray  # [m] int64, header.stamp in ns
+    positions: np.ndarray  # [m, 3]
+    quaternions: np.ndarray  # [m, 4] (x, y, z, w)
+    linears: np.ndarray  # [m, 3] twist.linear (Odometry: child frame, as sent); zeros for a pose
+
+
+def _never_called(_msg) -> None:  # the inbox's node is never spun
+    raise AssertionError('a StateInbox subscription was spun by an executor')
+
+
+class StateInbox:
+    """The state topics of ``fleet``'s robots, taken on demand (see the module doc).
+
+    Args:
+        context: the rclpy context of the node that owns the inbox.
+        fleet: the robots (ids, state topics, state type).
+        depth: messages kept per robot between two takes (keep last): 1 when only the newest
+            matters; enough for a tick's worth when every message does (a velocity estimate).
+        name: the inbox's node name (its own node, never added to an executor).
+    """
+
+    def __init__(self, context, fleet: Fleet, depth: int, name: str = 'state_inbox'):
+        self.fleet = fleet
+        self.msg_type = STATE_MESSAGES[fleet.state.type]
+        self.depth = int(depth)
+        self.malformed = 0  # bytes that are not a message of the state type
+        self.foreign = 0  # an Odometry whose child_frame_id is another robot's
+        # The process's remappings apply (topics, namespace) but not a node name given to the
+        # owner (``-r __node:=...``): the inbox keeps its own name.
+        self.node = Node(
+            name,
+            context=context,
+            cli_args=['--ros-args', '-r', f'__node:={name}'],
+            start_parameter_services=False,
+            enable_rosout=False,
+        )
+        profile = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=self.depth,
+            reliability=qos.ODOM.reliability,
+            durability=qos.ODOM.durability,
+        )
+        odometry = fleet.state.type == 'odometry'
+        try:
+            self.subscriptions = [
+                self.node.create_subscription(
+                    self.msg_type, fleet.state_topic(rid), _never_called, profile, raw=True
+                )
+                for rid in fleet.ids
+            ]
+        except BaseException:  # a signal or a bad topic: the node's handle must not outlive us
+            self.node.destroy_node()
+            raise
+        # per robot: id, the subscription's handle, decoder (Odometry), the child_frame_id last
+        # found its own
+        self._robots = [
+            [int(rid), sub.handle, OdomStream() if odometry else None, None]
+            for rid, sub in zip(fleet.ids, self.subscriptions)
+        ]
+
+    def take(self) -> Taken:
+        """Every message queued since the last call, decoded (see the module doc).
+
+        Call it from the thread that destroys the inbox (the takes skip rclpy's guard against a
+        handle destroyed meanwhile, which costs as much as a take)."""
+        robots, stamps, poses, linears = [], [], [], []
+        msg_type, depth = self.msg_type, self.depth
+        for entry in self._robots:
+            rid, handle, stream, own = entry
+            # At most ``depth`` are queued: no take that can only come back empty (a message
+            # arriving meanwhile waits for the next call).
+            for _ in range(depth):
+                got = handle.take_message(msg_type, True)
+                if got is None:
+                    break
+                try:
+                    if stream is not None:
+                        ns, child, pose, linear = stream.read(got[0])
+                        if child != own:
+                            if not self.fleet.owns_frame(child, rid):
+                                self.foreign += 1
+                                continue
+                            entry[3] = own = child
+                    else:
+                        ns, _, pose = pose_from_cdr(got[0])
+                        linear = _NO_TWIST
+                except CdrError:
+                    self.malformed += 1
+                    continue
+                robots.append(rid)
+                stamps.append(ns)
+                poses.append(pose)
+                linears.append(linear)
+        pose = np.array(poses, dtype=np.float64).reshape(-1, 7)
+        return Taken(
+            robots=np.array(robots, dtype=np.int64),
+            stamps=np.array(stamps, dtype=np.int64),
+            positions=pose[:, :3],
+            quaternions=pose[:, 3:],
+            linears=np.array(linears, dtype=np.float64).reshape(-1, 3),
+        )
+
+    def destroy(self) -> None:
+        """Destroy the inbox's node (its subscriptions)."""
+        self.node.destroy_node()
