@@ -172,3 +172,46 @@ def test_the_inbox_takes_a_fleets_poses(ros, tmp_path):
         assert np.array_equal(got['positions'][mine], np.array([(rid, k, 0.5) for k in range(25)], float))
     assert np.array_equal(got['quaternions'], np.tile([0.0, 0.0, 0.6, 0.8], (50, 1)))
     assert not got['linears'].any()  # a pose has no twist
+
+
+@pytest.mark.ros
+def test_the_inbox_takes_raw_bytes_of_some_robots_in_its_namespace(ros, tmp_path):
+    """The agent's use: its neighbours only, relative topics resolved in its namespace, its QoS,
+    the bytes undecoded."""
+    from geometry_msgs.msg import PoseStamped
+
+    from knode_swarm_ros.nodes.common.state_inbox import StateInbox
+
+    context, node = ros
+    path = tmp_path / 'fleet.yaml'
+    path.write_text(
+        yaml.safe_dump(
+            {
+                'robots': {'a': {'id': 0}, 'b': {'id': 1}, 'c': {'id': 2}},
+                'state': {'topic': 'pose', 'type': 'pose'},  # relative: <name>/pose
+            }
+        )
+    )
+    fleet = load_fleet(str(path))
+    inbox = StateInbox(
+        context, fleet, 1, name='agent_inbox', ids=[1, 2], qos_profile=qos.ODOM, namespace='/lab'
+    )
+    try:
+        assert inbox.depth == qos.ODOM.depth
+        pubs = _publishers(node, PoseStamped, ['/lab/b/pose', '/lab/c/pose'], inbox)
+        sent = {1: [], 2: []}
+        for k in range(3):
+            for rid, pub in zip((1, 2), pubs):
+                data = pose_to_cdr(k * 10**7, (rid, k, 0.0), (0.0, 0.0, 0.0, 1.0))
+                pub.publish(data)
+                sent[rid].append(data)
+        got = []
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline and len(got) < 6:
+            got += list(inbox.take_raw())
+            time.sleep(0.05)
+    finally:
+        inbox.destroy()
+    assert [d for r, d in got if r == 1] == sent[1]  # the bytes as sent, oldest first
+    assert [d for r, d in got if r == 2] == sent[2]
+    assert len(got) == 6  # robot 0 not subscribed

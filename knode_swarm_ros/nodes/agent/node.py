@@ -34,7 +34,6 @@ from knode_swarm_ros.logic.reporting import Throttle, throttled_log, write_json_
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
     COMMAND_MESSAGES,
-    STATE_MESSAGES,
     CdrError,
     command_to_cdr,
     odom_fields_from_cdr,
@@ -43,9 +42,9 @@ from knode_swarm_ros.nodes.common.conversions import (
 )
 from knode_swarm_ros.nodes.common.executor import run_node
 from knode_swarm_ros.nodes.common.params import check_overrides, declare, node_name_from_args
+from knode_swarm_ros.nodes.common.state_inbox import StateInbox
 
 from .health import AgentHealth
-from .inbox import StateInbox
 from .link import AgentLink
 from .managed import ManagedAgentMixin
 from .params import declare_agent_parameters
@@ -163,7 +162,17 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
             self, [i for i in ids if i not in inboxed], self._on_odom, stream
         )
         self.inbox = (
-            StateInbox(self, STATE_MESSAGES['pose'], inboxed, fleet.state_topic, stream) if inboxed else None
+            StateInbox(
+                self.context,
+                fleet,
+                stream.depth,
+                name=f'{self.get_name()}_inbox',
+                ids=inboxed,
+                qos_profile=stream,
+                namespace=self.get_namespace(),
+            )
+            if inboxed
+            else None
         )
         self._missing_since = None  # when the swarm was first heard (monotonic s)
         self.on_state = (
@@ -206,9 +215,9 @@ class AgentNode(ManagedAgentMixin, LifecycleNode):
         self._after_hearing(now)
 
     def _take_inbox(self, now: int) -> None:
-        """File what the neighbours' inbox holds (realtime pose fleets: :mod:`.inbox`)."""
+        """File what the neighbours' inbox holds (realtime pose fleets: :class:`StateInbox`)."""
         if self.inbox is not None:
-            for topic_robot, data in self.inbox.take():
+            for topic_robot, data in self.inbox.take_raw():
                 self._hear(topic_robot, data, now)
 
     def _on_inbox_poll(self) -> None:

@@ -18,7 +18,7 @@ robot's own (:attr:`StateInbox.foreign`, ``Fleet.owns_frame``).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Iterator, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from rclpy.node import Node
@@ -57,12 +57,27 @@ class StateInbox:
         depth: messages kept per robot between two takes (keep last): 1 when only the newest
             matters; enough for a tick's worth when every message does (a velocity estimate).
         name: the inbox's node name (its own node, never added to an executor).
+        ids: the robots to subscribe to (default: all of the fleet's).
+        qos_profile: the subscriptions' QoS (default: the state QoS, keep last ``depth``);
+            ``depth`` is then the profile's.
+        namespace: the inbox node's namespace, where relative topic names resolve (an agent
+            passes its own).
     """
 
-    def __init__(self, context, fleet: Fleet, depth: int, name: str = 'state_inbox'):
+    def __init__(
+        self,
+        context,
+        fleet: Fleet,
+        depth: int,
+        name: str = 'state_inbox',
+        ids: Optional[Sequence[int]] = None,
+        qos_profile: Optional[QoSProfile] = None,
+        namespace: Optional[str] = None,
+    ):
         self.fleet = fleet
         self.msg_type = STATE_MESSAGES[fleet.state.type]
-        self.depth = int(depth)
+        self.depth = int(qos_profile.depth if qos_profile is not None else depth)
+        ids = list(fleet.ids if ids is None else ids)
         self.malformed = 0  # bytes that are not a message of the state type
         self.foreign = 0  # an Odometry whose child_frame_id is another robot's
         # The process's remappings apply (topics, namespace) but not a node name given to the
@@ -70,11 +85,12 @@ class StateInbox:
         self.node = Node(
             name,
             context=context,
+            namespace=namespace,
             cli_args=['--ros-args', '-r', f'__node:={name}'],
             start_parameter_services=False,
             enable_rosout=False,
         )
-        profile = QoSProfile(
+        profile = qos_profile or QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=self.depth,
             reliability=qos.ODOM.reliability,
@@ -86,7 +102,7 @@ class StateInbox:
                 self.node.create_subscription(
                     self.msg_type, fleet.state_topic(rid), _never_called, profile, raw=True
                 )
-                for rid in fleet.ids
+                for rid in ids
             ]
         except BaseException:  # a signal or a bad topic: the node's handle must not outlive us
             self.node.destroy_node()
@@ -95,8 +111,19 @@ class StateInbox:
         # found its own
         self._robots = [
             [int(rid), sub.handle, OdomStream() if odometry else None, None]
-            for rid, sub in zip(fleet.ids, self.subscriptions)
+            for rid, sub in zip(ids, self.subscriptions)
         ]
+
+    def take_raw(self) -> Iterator[Tuple[int, bytes]]:
+        """``(robot, bytes)`` of every message queued since the last call, robot by robot, each
+        robot's oldest first, undecoded (for a caller with a decoder of its own, as the agent's)."""
+        msg_type, depth = self.msg_type, self.depth
+        for rid, handle, _, _ in self._robots:
+            for _ in range(depth):
+                got = handle.take_message(msg_type, True)
+                if got is None:
+                    break
+                yield rid, got[0]
 
     def take(self) -> Taken:
         """Every message queued since the last call, decoded (see the module doc).
