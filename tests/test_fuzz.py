@@ -658,6 +658,12 @@ def test_a_damaged_bag_imports_or_is_refused_without_writing(good_bags, suffix, 
     st.sampled_from(['nav_msgs/msg/Odometry', 'geometry_msgs/msg/PoseStamped', 'std_msgs/msg/String']),
     st.sampled_from(['mcap', 'sqlite3']),
 )
+@example(
+    [0, 59, 0, 27758, 0, 648, 48084, 0],
+    [4.677605422298023e225, 0.0, 0.0, 0.0],
+    'nav_msgs/msg/Odometry',
+    'mcap',
+)  # the smoother squared 1e225 m: once an OverflowError
 def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps, values, type_name, storage):
     with _tmpdir() as tmp:
         bag = _write_bag(Path(tmp) / 'bag', storage, stamps, values, type_name)
