@@ -40,10 +40,14 @@ POLICIES = ROOT / 'knode_swarm_ros' / 'policies'
 FUZZ = os.environ.get('HYPOTHESIS_PROFILE') == 'fuzz'
 
 
+FUZZ_EXAMPLES = int(os.environ.get('FUZZ_EXAMPLES', '10000'))  # `make fuzz FUZZ_EXAMPLES=N`
+
+
 def budget(suite: int):
-    """``suite`` examples in the suite, 10,000 under ``make fuzz`` (the profile's other settings)."""
+    """``suite`` examples in the suite, FUZZ_EXAMPLES (10,000) under ``make fuzz`` (the profile's
+    other settings)."""
     return settings(
-        max_examples=10_000 if FUZZ else suite,
+        max_examples=FUZZ_EXAMPLES if FUZZ else suite,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
     )
 
