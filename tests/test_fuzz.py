@@ -731,6 +731,7 @@ set_items = st.one_of(
 @example({'scenario': 'flock2d'}, ['training.epochs=!!float'], '')  # pyyaml: once an IndexError
 @example({'scenario': 'flock2d'}, [], '\nseed: !!bool maybe\n')  # and a KeyError
 @example({'scenario': 'flock2d'}, ['policy=&a {k: *a}'], '')  # a mapping that holds itself
+@example({'scenario': 'flock2d'}, ['training.objective=[]'], '')  # `in` a dict: once a TypeError
 def test_training_configs_and_set_values_load_or_are_refused(raw, items, line):
     from training.learning.config import PendingConfig, load_config
 

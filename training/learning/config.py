@@ -339,7 +339,7 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
 def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
     t, m = cfg['training'], cfg['multistep']
     _check(
-        t['objective'] in OBJECTIVES,
+        isinstance(t['objective'], str) and t['objective'] in OBJECTIVES,  # a list is no key of it
         'training.objective',
         t['objective'],
         f'must be one of {", ".join(OBJECTIVES)}',
