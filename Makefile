@@ -60,10 +60,12 @@ bench: $(VENV)/.installed
 	  $(ROS_ENV) PYTHONPATH="$(CURDIR)$${PYTHONPATH:+:$$PYTHONPATH}" $(PY) "$$f"; \
 	done; [ $$found = 1 ] || echo "no benchmarks under bench/"
 
-# The suite's fuzz tests (tests/test_fuzz.py) with the `fuzz` hypothesis profile: 10,000 generated
-# inputs per reader and a fresh seed each run instead of the suite's fixed one (docs/testing.md, "Fuzzing").
+# The suite's fuzz tests (tests/test_fuzz.py) with the `fuzz` hypothesis profile: FUZZ_EXAMPLES (10,000)
+# generated inputs per reader and a fresh seed each run instead of the suite's fixed one (docs/testing.md,
+# "Fuzzing"); PYTEST_ARGS='-k bag' picks readers.
+FUZZ_EXAMPLES ?= 10000
 fuzz: $(VENV)/.installed
-	$(ROS_ENV) HYPOTHESIS_PROFILE=fuzz $(PY) -m pytest -q -rs tests/test_fuzz.py $(PYTEST_ARGS)
+	$(ROS_ENV) HYPOTHESIS_PROFILE=fuzz FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -rs tests/test_fuzz.py $(PYTEST_ARGS)
 
 # Mutation testing (not part of CI; ~6300 mutants, hours on 2 cores, see docs/testing.md): cosmic-ray over
 # the core and the *_logic modules, in a copy under out/mutation. MUTATION_ARGS: --only, --sample, --seed.

@@ -59,3 +59,26 @@ def test_a_signal_while_building_raises_at_once_but_not_inside_importlib():
         finally:
             signal.setitimer(signal.ITIMER_REAL, 0)
     assert signal.getsignal(signal.SIGALRM) == before  # the handlers are put back
+
+
+def test_a_late_retry_during_the_clean_up_does_not_end_the_process(monkeypatch):
+    """The retry armed by a signal inside importlib can fire after the build has ended, once the
+    clean-up has begun (``ending`` set): it must not end the process as a second signal does,
+    before the node and the context (the DDS participant, its /dev/shm segment) are destroyed."""
+    from knode_swarm_ros.nodes.common import executor
+
+    ended = []
+    monkeypatch.setattr(executor, '_end_process', ended.append)
+    with _Interrupts() as interrupts:
+        try:
+            interrupts.raising = True
+            interrupts._note(signal.SIGINT, _frame_in(_IMPORT_MACHINERY))  # deferred: the retry is armed
+            signal.setitimer(signal.ITIMER_REAL, 0)  # the test calls the retry itself
+            interrupts.raising = False  # the build ended before the retry fired
+            interrupts.ending = 0  # run_node's clean-up has begun
+            interrupts._retry(signal.SIGALRM, sys._getframe())
+            assert ended == []
+            interrupts._note(signal.SIGTERM, sys._getframe())  # a second signal does end it
+            assert ended == [0]
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)

@@ -11,6 +11,8 @@ found is kept as an ``@example`` of the test that found it.
 """
 
 import contextlib
+import copy
+import functools
 import io
 import json
 import math
@@ -38,10 +40,14 @@ POLICIES = ROOT / 'knode_swarm_ros' / 'policies'
 FUZZ = os.environ.get('HYPOTHESIS_PROFILE') == 'fuzz'
 
 
+FUZZ_EXAMPLES = int(os.environ.get('FUZZ_EXAMPLES', '10000'))  # `make fuzz FUZZ_EXAMPLES=N`
+
+
 def budget(suite: int):
-    """``suite`` examples in the suite, 10,000 under ``make fuzz`` (the profile's other settings)."""
+    """``suite`` examples in the suite, FUZZ_EXAMPLES (10,000) under ``make fuzz`` (the profile's
+    other settings)."""
     return settings(
-        max_examples=10_000 if FUZZ else suite,
+        max_examples=FUZZ_EXAMPLES if FUZZ else suite,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
     )
 
@@ -61,6 +67,13 @@ json_values = st.recursive(
 nested = st.integers(1, 2000).map(lambda n: '[' * n + ']' * n)
 nested_yaml = st.integers(1, 600).map(lambda n: '[' * n)  # pyyaml recurses ~3 frames a level, slowly
 huge_numbers = st.integers(300, 5000).map(lambda n: '1' + '0' * n)
+# YAML's explicit tags on values that may not be of the tag (pyyaml's constructors once raised
+# IndexError, KeyError or AttributeError on them), anchors and aliases (a list that holds itself).
+YAML_TAGS = ['!!int', '!!float', '!!bool', '!!timestamp', '!!binary', '!!null', '!!str', '!!set', '!!map']
+YAML_TAGS += ['!!seq', '!!omap', '!!pairs', '!!merge', '!!value', '!!python/none', '&a']
+tagged_yaml = st.tuples(st.sampled_from(YAML_TAGS), st.sampled_from(['', ' ']), st.text(max_size=12)).map(
+    ''.join
+) | st.sampled_from(['&a [*a]', '&a {x: *a}', '[&a 1, *a, *b]', '<<: 1'])
 hostile_text = st.one_of(
     st.text(max_size=200),
     json_values.map(lambda v: json.dumps(v)),
@@ -71,7 +84,11 @@ hostile_text = st.one_of(
 
 
 def _tmpdir():
-    return tempfile.TemporaryDirectory(prefix='knode-fuzz-')
+    # In memory where there is /dev/shm: sqlite's fsync and the file churn of 10,000 examples
+    # cost nothing there.
+    return tempfile.TemporaryDirectory(
+        prefix='knode-fuzz-', dir='/dev/shm' if os.path.isdir('/dev/shm') else None
+    )
 
 
 # --- CDR: Odometry and commands as they come off the wire ----------------------------------------
@@ -290,8 +307,13 @@ def test_an_npy_header_claiming_a_huge_array_is_refused_without_allocating_it():
 # --- policy files: knode.json, TorchScript, ONNX twins ---------------------------------------------
 
 
-def _shipped_meta(name='flock2d'):
+@functools.lru_cache(maxsize=None)
+def _shipped_meta_cached(name):
     return read_pt_meta(POLICIES / f'{name}.pt')
+
+
+def _shipped_meta(name='flock2d'):
+    return copy.deepcopy(_shipped_meta_cached(name))
 
 
 @st.composite
@@ -353,16 +375,62 @@ def test_arbitrary_bytes_as_a_policy_file_are_refused(data, magic):
                 reader(pt)
 
 
-@pytest.fixture(scope='module')
-def scripted():
+# The policy readers' properties are about their checks (knode.json, the probe, the twin's
+# inputs, outputs and source), not about a network: each example carries its hostile metadata on
+# a tiny module or model, built once, that the checks cannot tell from a trained one. Besides one
+# that answers like a policy there are carriers the probe must refuse (a forward that raises for
+# some k, a wrong shape or dtype, non-finite commands); the shipped files remain among them.
+
+
+def _carrier_modules():
+    """``{name: scripted module}``: tiny TorchScript policies of any ``d`` (command: the first
+    ``d // 2`` state entries of row 0: the shipped scenarios' command sizes), and the shipped ones."""
     import torch
 
-    return {name: torch.jit.load(str(POLICIES / f'{name}.pt')) for name in SCENARIOS}
+    class Answers(torch.nn.Module):
+        def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            return Y[:, 0, : Y.shape[2] // 2] * mask[:, :1]
+
+    class RaisesUnlessK6(torch.nn.Module):
+        def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            if Y.shape[1] != 6:
+                raise RuntimeError('this policy needs k = 6')
+            return Y[:, 0, : Y.shape[2] // 2]
+
+    class WrongShape(torch.nn.Module):
+        def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            return Y[:, 0, :]
+
+    class Float64(torch.nn.Module):
+        def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            return Y[:, 0, : Y.shape[2] // 2].double()
+
+    class NonFinite(torch.nn.Module):
+        def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            return Y[:, 0, : Y.shape[2] // 2] / 0.0
+
+    out = {
+        cls.__name__: torch.jit.script(cls())
+        for cls in (Answers, RaisesUnlessK6, WrongShape, Float64, NonFinite)
+    }
+    out.update({name: torch.jit.load(str(POLICIES / f'{name}.pt')) for name in SCENARIOS})
+    return out
 
 
-@budget(25)
-@given(hostile_meta() | hostile_text, st.sampled_from(SCENARIOS))
-def test_torchscript_with_a_hostile_knode_json_loads_or_is_refused(scripted, meta, scenario):
+@pytest.fixture(scope='module')
+def carriers():
+    return _carrier_modules()
+
+
+# A shipped module costs many times a tiny one to save and load: one example in eight carries on one.
+carrier_names = st.sampled_from(
+    ['Answers'] * 10 + ['RaisesUnlessK6', 'WrongShape', 'Float64', 'NonFinite', *SCENARIOS]
+)
+
+
+@budget(60)
+@given(hostile_meta() | hostile_text, carrier_names)
+def test_torchscript_with_a_hostile_knode_json_loads_or_is_refused(carriers, meta, carrier):
     import torch
 
     from knode_swarm_ros.core.policy_io import load_policy
@@ -370,23 +438,97 @@ def test_torchscript_with_a_hostile_knode_json_loads_or_is_refused(scripted, met
     text = meta if isinstance(meta, str) else _meta_text(meta)
     with _tmpdir() as tmp:
         pt = Path(tmp) / 'p.pt'
-        torch.jit.save(scripted[scenario], str(pt), _extra_files={'knode.json': text})
+        torch.jit.save(carriers[carrier], str(pt), _extra_files={'knode.json': text})
         try:
             policy = load_policy(pt)
         except PolicyError:
             return
+        assert carrier in ('Answers', 'RaisesUnlessK6') + SCENARIOS, carrier  # the probe refuses the rest
         out = policy(np.zeros((1, policy.k, policy.meta['state_dim'])), np.ones((1, policy.k), dtype=bool))
         assert out.shape == (1, policy.meta['command_dim'])
 
 
-@budget(15)
-@given(hostile_meta() | hostile_text, st.booleans(), st.none() | st.text(max_size=64), st.booleans())
-def test_an_onnx_twin_whose_metadata_disagree_is_refused(meta, with_pt, source, keep_source):
+def _onnx_carriers():
+    """``{name: ModelProto}``: tiny ONNX policies (Y [batch, k, d], mask [batch, k] -> the first
+    d // 2 entries of Y's row 0) with dynamic ``k`` and ``d``, with the shipped twin's fixed
+    ``k`` and ``d``, and one that answers NaN; each with the shipped flock2d twin's metadata.
+    And that twin itself."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    shipped = onnx.load(str(POLICIES / 'flock2d.onnx'))
+
+    def const(name, values):
+        return helper.make_node(
+            'Constant', [], [name], value=helper.make_tensor(name, TensorProto.INT64, [len(values)], values)
+        )
+
+    def model(y_dims, nan=False):
+        nodes = [
+            const('two', [2]),
+            const('zeros', [0, 0]),
+            const('one', [1]),
+            const('axes12', [1, 2]),
+            helper.make_node('Shape', ['Y'], ['shape']),
+            helper.make_node('Gather', ['shape', 'two'], ['d']),
+            helper.make_node('Div', ['d', 'two'], ['half']),
+            helper.make_node('Concat', ['one', 'half'], ['ends'], axis=0),
+            helper.make_node('Slice', ['Y', 'zeros', 'ends', 'axes12'], ['row0']),
+            helper.make_node('Squeeze', ['row0', 'one'], ['u0']),
+            helper.make_node('ReduceSum', ['mask', 'one'], ['heard'], keepdims=1),
+            helper.make_node('Mul', ['u0', 'heard'], ['u1']),
+        ]
+        if nan:
+            nodes += [
+                helper.make_node('Sub', ['u1', 'u1'], ['zero']),
+                helper.make_node('Div', ['zero', 'zero'], ['u']),
+            ]
+        else:
+            nodes += [helper.make_node('Identity', ['u1'], ['u'])]
+        graph = helper.make_graph(
+            nodes,
+            'carrier',
+            [
+                helper.make_tensor_value_info('Y', TensorProto.FLOAT, ['batch', *y_dims]),
+                helper.make_tensor_value_info('mask', TensorProto.FLOAT, ['batch', y_dims[0]]),
+            ],
+            [helper.make_tensor_value_info('u', TensorProto.FLOAT, ['batch', 'm'])],
+        )
+        out = helper.make_model(graph, opset_imports=[helper.make_opsetid('', 17)], ir_version=8)
+        for prop in shipped.metadata_props:
+            out.metadata_props.add(key=prop.key, value=prop.value)
+        return out
+
+    fixed = [d.dim_value for d in shipped.graph.input[0].type.tensor_type.shape.dim[1:]]
+    return {
+        'dynamic': model(['k', 'd']),
+        'fixed': model(fixed),
+        'nan': model(['k', 'd'], nan=True),
+        'shipped': shipped,
+    }
+
+
+@pytest.fixture(scope='module')
+def onnx_carriers():
+    return {name: model.SerializeToString() for name, model in _onnx_carriers().items()}
+
+
+@budget(60)
+@given(
+    hostile_meta() | hostile_text,
+    st.booleans(),
+    st.none() | st.text(max_size=64),
+    st.booleans(),
+    st.sampled_from(['dynamic'] * 5 + ['fixed', 'nan', 'shipped']),  # the shipped twin: one in eight
+)
+def test_an_onnx_twin_whose_metadata_disagree_is_refused(
+    onnx_carriers, meta, with_pt, source, keep_source, carrier
+):
     import onnx
 
     from knode_swarm_ros.core.policy_runtime import META_KEY, SOURCE_KEY, load_onnx_policy
 
-    model = onnx.load(str(POLICIES / 'flock2d.onnx'))
+    model = onnx.ModelProto.FromString(onnx_carriers[carrier])
     props = {p.key: p.value for p in model.metadata_props}
     props[META_KEY] = meta if isinstance(meta, str) else _meta_text(meta)
     if not keep_source:
@@ -399,18 +541,23 @@ def test_an_onnx_twin_whose_metadata_disagree_is_refused(meta, with_pt, source, 
         model.metadata_props.add(key=key, value=value)
     with _tmpdir() as tmp:
         twin = Path(tmp) / 'flock2d.onnx'
-        onnx.save(model, str(twin))
+        twin.write_bytes(model.SerializeToString())
         pt = None
         if with_pt:
             pt = Path(tmp) / 'flock2d.pt'
-            pt.write_bytes((POLICIES / 'flock2d.pt').read_bytes())
+            pt.write_bytes(SHIPPED_PT)
         try:
             policy = load_onnx_policy(twin, pt_path=pt)
         except PolicyError:
             return
+        assert carrier != 'nan'  # the probe refuses non-finite commands
         assert policy.meta == (read_pt_meta(pt) if pt else policy.meta)
-        out = policy(np.zeros((1, policy.k, 4)), np.ones((1, policy.k), dtype=bool))
-        assert out.shape == (1, 2) and np.all(np.isfinite(out))
+        d, m = policy.meta['state_dim'], policy.meta['command_dim']
+        out = policy(np.zeros((1, policy.k, d)), np.ones((1, policy.k), dtype=bool))
+        assert out.shape == (1, m) and np.all(np.isfinite(out))
+
+
+SHIPPED_PT = (POLICIES / 'flock2d.pt').read_bytes()
 
 
 # --- bags ---------------------------------------------------------------------------------------------
@@ -421,11 +568,10 @@ def _write_bag(bag, storage, stamps, values, type_name='nav_msgs/msg/Odometry'):
     message j with the state ``values`` shifted by j, written in list order with the stamps
     ``stamps`` (header and log time alike)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
 
-    from knode_swarm_ros.bag.messages import ns_to_stamp, to_message
+    from knode_swarm_ros.bag.messages import ns_to_stamp, to_message, typestore
 
-    store = get_typestore(Stores.ROS2_JAZZY)
+    store = typestore()  # built once (a few hundred message types)
     plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
     with Writer(bag, version=9, storage_plugin=plugin) as writer:
         conns = [writer.add_connection(f'/robot_{i}/odom', type_name, typestore=store) for i in range(2)]
@@ -516,6 +662,12 @@ def test_a_damaged_bag_imports_or_is_refused_without_writing(good_bags, suffix, 
     st.sampled_from(['nav_msgs/msg/Odometry', 'geometry_msgs/msg/PoseStamped', 'std_msgs/msg/String']),
     st.sampled_from(['mcap', 'sqlite3']),
 )
+@example(
+    [0, 59, 0, 27758, 0, 648, 48084, 0],
+    [4.677605422298023e225, 0.0, 0.0, 0.0],
+    'nav_msgs/msg/Odometry',
+    'mcap',
+)  # the smoother squared 1e225 m: once an OverflowError
 def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps, values, type_name, storage):
     with _tmpdir() as tmp:
         bag = _write_bag(Path(tmp) / 'bag', storage, stamps, values, type_name)
@@ -527,11 +679,17 @@ def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps,
 CONFIGS = sorted((ROOT / 'config').glob('train_*.yaml'))
 
 
+@functools.lru_cache(maxsize=None)
+def _yaml_doc(path):
+    """A shipped YAML file's document, read once (each example mutates a copy)."""
+    return yaml.safe_load(path.read_text())
+
+
 @st.composite
 def hostile_config(draw):
     """A shipped training config with leaves replaced by any YAML value, sections dropped or
     replaced by scalars, or not a mapping at all."""
-    raw = yaml.safe_load(draw(st.sampled_from(CONFIGS)).read_text())
+    raw = copy.deepcopy(_yaml_doc(draw(st.sampled_from(CONFIGS))))
     for _ in range(draw(st.integers(0, 4))):
         section = draw(st.sampled_from(sorted(raw)))
         if isinstance(raw[section], dict) and raw[section] and draw(st.booleans()):
@@ -552,24 +710,34 @@ set_items = st.one_of(
         st.sampled_from(
             ['training.epochs', 'policy.k', 'policy', 'data.stride', 'noise.mode', 'x.y.z', '.', 'seed.x']
         ),
-        st.text(max_size=20) | json_values.map(lambda v: yaml.safe_dump(v, default_flow_style=True).strip()),
+        st.text(max_size=20)
+        | tagged_yaml
+        | json_values.map(lambda v: yaml.safe_dump(v, default_flow_style=True).strip()),
     ).map('='.join),
 )
 
 
 @budget(40)
-@given(hostile_config(), st.lists(set_items, max_size=3))
+@given(
+    hostile_config(),
+    st.lists(set_items, max_size=3),
+    st.just('') | tagged_yaml.map(lambda t: f'\nseed: {t}\n'),  # a line yaml.safe_dump never writes
+)
 @example(
-    {'scenario': 'flock2d'}, ['policy=3', 'policy.k=4']
+    {'scenario': 'flock2d'}, ['policy=3', 'policy.k=4'], ''
 )  # a --set below a scalar: once an AttributeError
-@example([1, 2], ['policy.k=4'])  # a config that is not a mapping
-@example({'scenario': 'auto', 'policy': {'k': 'auto'}}, ['policy=1'])  # auto fields of no mapping
-def test_training_configs_and_set_values_load_or_are_refused(raw, items):
+@example([1, 2], ['policy.k=4'], '')  # a config that is not a mapping
+@example({'scenario': 'auto', 'policy': {'k': 'auto'}}, ['policy=1'], '')  # auto fields of no mapping
+@example({'scenario': 'flock2d'}, ['training.epochs=!!float'], '')  # pyyaml: once an IndexError
+@example({'scenario': 'flock2d'}, [], '\nseed: !!bool maybe\n')  # and a KeyError
+@example({'scenario': 'flock2d'}, ['policy=&a {k: *a}'], '')  # a mapping that holds itself
+@example({'scenario': 'flock2d'}, ['training.objective=[]'], '')  # `in` a dict: once a TypeError
+def test_training_configs_and_set_values_load_or_are_refused(raw, items, line):
     from training.learning.config import PendingConfig, load_config
 
     with _tmpdir() as tmp:
         path = Path(tmp) / 'train.yaml'
-        path.write_text(yaml.safe_dump(raw))
+        path.write_text(yaml.safe_dump(raw) + line)
         try:
             cfg = load_config(str(path), parse_set(items))
         except ConfigError:
@@ -581,15 +749,100 @@ def test_training_configs_and_set_values_load_or_are_refused(raw, items):
 
 
 @budget(60)
-@given(st.lists(st.text(max_size=40) | (nested_yaml | huge_numbers).map(lambda t: 'a.b=' + t), max_size=4))
+@given(
+    st.lists(
+        st.text(max_size=40) | (nested_yaml | huge_numbers | tagged_yaml).map(lambda t: 'a.b=' + t),
+        max_size=4,
+    )
+)
 @example(['a=' + '[' * 600])  # yaml's recursion: once a RecursionError
 @example(['a=1' + '0' * 4300])  # Python's int digit limit: once a ValueError
+@example(['a=!!int'])  # pyyaml's constructors: once an IndexError,
+@example(['a=!!bool maybe'])  # a KeyError,
+@example(['a=!!timestamp soon'])  # an AttributeError
 def test_set_values_parse_or_are_refused(items):
     try:
         out = parse_set(items)
     except ConfigError:
         return
     assert isinstance(out, dict)
+
+
+# --- scenario and fleet files ---------------------------------------------------------------------
+
+SCENARIO_FILES = sorted((ROOT / 'knode_swarm_ros' / 'scenarios').glob('*.yaml'))
+FLEET_FILES = sorted((ROOT / 'config' / 'fleets').glob('*.yaml'))
+
+
+def _paths(doc, prefix=()):
+    """Every key path of a YAML document (mappings and lists), the root included."""
+    out = [prefix]
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for key, value in items:
+        out += _paths(value, prefix + (key,))
+    return out
+
+
+@st.composite
+def hostile_yaml_file(draw, files):
+    """A shipped YAML file's document with up to four entries replaced by any value, dropped, or
+    given a sibling, written by yaml.safe_dump, and maybe a tagged line after it; or any text."""
+    doc = copy.deepcopy(_yaml_doc(draw(st.sampled_from(files))))
+    for _ in range(draw(st.integers(0, 4))):
+        path = draw(st.sampled_from(_paths(doc)))
+        if not path:
+            doc = draw(json_values)
+            continue
+        parent = doc
+        for key in path[:-1]:
+            parent = parent[key]
+        how = draw(st.sampled_from(['replace', 'drop', 'add']))
+        if how == 'replace' or (how == 'drop' and isinstance(parent, list)):
+            parent[path[-1]] = draw(json_values)
+        elif how == 'drop':
+            del parent[path[-1]]
+        elif isinstance(parent, dict):
+            parent[draw(st.text(max_size=8))] = draw(json_values)
+        else:
+            parent.append(draw(json_values))
+    text = yaml.safe_dump(doc) + draw(st.just('') | tagged_yaml.map(lambda t: f'\nextra: {t}\n'))
+    return draw(st.just(text) | st.text(max_size=100) | nested_yaml)
+
+
+@budget(100)
+@given(hostile_yaml_file(SCENARIO_FILES))
+@example('name: x\ndimensions: !!int\n')  # pyyaml: once an IndexError
+def test_scenario_files_load_or_are_refused(text):
+    from knode_swarm_ros.core.scenarios import Scenario, ScenarioError, get_scenario
+
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'custom.yaml'
+        path.write_text(text)
+        try:
+            spec = get_scenario(str(path))
+        except ScenarioError:
+            return
+        assert isinstance(spec, Scenario) and spec.state_dim > 0 and spec.command_dim > 0
+
+
+@budget(100)
+@given(hostile_yaml_file(FLEET_FILES), st.booleans())
+@example('robots: !!bool maybe\n', False)  # pyyaml: once a KeyError
+@example('robots: fleet.yaml\n', False)  # a robots file that is the fleet file itself
+def test_fleet_files_load_or_are_refused(text, beside):
+    """``beside``: the file is also there as ``crazyflies.yaml``, which ``robots:`` may name."""
+    from knode_swarm_ros.logic.contract.fleet import Fleet, load_fleet
+
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'fleet.yaml'
+        path.write_text(text)
+        if beside:
+            (Path(tmp) / 'crazyflies.yaml').write_text(text)
+        try:
+            fleet = load_fleet(str(path))
+        except ConfigError:
+            return
+        assert isinstance(fleet, Fleet) and len(fleet.robots) >= 1
 
 
 # --- node parameter files ---------------------------------------------------------------------------
@@ -612,13 +865,18 @@ AGENT_PARAMS = [
 
 @pytest.fixture(scope='module')
 def ros_context():
+    """One context for every example, with a node that keeps its DDS participant alive (a fresh
+    context per example makes a fresh participant: most of an example's time). Each example's
+    ``--params-file`` is the ROS arguments of its own node, which rcl parses with the same parser
+    as a context's (``rcl_parse_arguments``) and merges into the node's overrides alike."""
     import rclpy
 
-    contexts = []
-    yield rclpy, contexts
-    for ctx in contexts:
-        if ctx.ok():
-            rclpy.shutdown(context=ctx)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    anchor = rclpy.create_node('fuzz_anchor', context=ctx, start_parameter_services=False)
+    yield rclpy, ctx
+    anchor.destroy_node()
+    rclpy.shutdown(context=ctx)
 
 
 @budget(30)
@@ -629,26 +887,28 @@ def ros_context():
         ),
         st.text(max_size=100),
         nested,
-    )
+        st.tuples(st.sampled_from(AGENT_PARAMS), tagged_yaml).map(
+            lambda p: f'/**:\n  ros__parameters:\n    {p[0]}: {p[1]}\n'
+        ),
+    ),
+    st.booleans(),
 )
-def test_agent_params_files_are_read_or_refused(ros_context, text):
+def test_agent_params_files_are_read_or_refused(ros_context, text, p_first):
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
     from knode_swarm_ros.nodes.agent.params import declare_agent_parameters
     from knode_swarm_ros.nodes.common.params import check_overrides
 
-    rclpy, contexts = ros_context
+    rclpy, ctx = ros_context
     with _tmpdir() as tmp:
         path = Path(tmp) / 'params.yaml'
         path.write_text(text)
-        ctx = rclpy.Context()
-        contexts.append(ctx)
-        argv = ['--ros-args', '--params-file', str(path)]
+        # -p before the file: check_overrides reads the file itself (a -p that the file overrides)
+        argv = ['--ros-args'] + (['-p', 'robots:=3'] if p_first else []) + ['--params-file', str(path)]
         try:
-            rclpy.init(args=argv, context=ctx)
+            node = rclpy.create_node('agent_0', context=ctx, cli_args=argv, start_parameter_services=False)
         except _rclpy.RCLError:
             return  # run_node refuses it: ConfigError 'cannot parse the ROS arguments' (exit 2)
-        node = rclpy.create_node('agent_0', context=ctx, start_parameter_services=False)
         try:
             declare_agent_parameters(node)
             check_overrides(node, argv)
@@ -656,7 +916,6 @@ def test_agent_params_files_are_read_or_refused(ros_context, text):
             pass
         finally:
             node.destroy_node()
-            rclpy.shutdown(context=ctx)
 
 
 def test_every_error_a_reader_raises_is_a_knode_error():

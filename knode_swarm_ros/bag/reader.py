@@ -149,8 +149,10 @@ def _check_file(path: Path) -> str:
 def _metadata_files(meta_path: Path) -> List[Path]:
     import yaml
 
+    from ..core.yaml_file import load_yaml
+
     try:
-        data = yaml.safe_load(meta_path.read_text(encoding='utf-8'))
+        data = load_yaml(meta_path.read_text(encoding='utf-8'))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise BagError(
             f'{meta_path}: not a readable rosbag2 metadata.yaml ({type(exc).__name__}: {exc})'

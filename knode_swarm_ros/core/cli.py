@@ -65,14 +65,16 @@ def parse_set(items: Optional[Iterable[str]]) -> Dict[str, Any]:
     """
     import yaml
 
+    from .yaml_file import load_yaml
+
     out: Dict[str, Any] = {}
     for item in items or []:
         key, sep, value = item.partition('=')
         if not sep or not key.strip():
             raise ConfigError(f'--set {item!r}: expected SECTION.KEY=VALUE')
         try:
-            parsed = yaml.safe_load(value)
-        except (yaml.YAMLError, ValueError, RecursionError) as exc:  # integers of > 4300 digits, deep nesting
+            parsed = load_yaml(value)
+        except yaml.YAMLError as exc:
             raise ConfigError(f'--set {item!r}: the value is not valid YAML ({exc})') from None
         out[key.strip()] = _number(parsed)
     return out

@@ -15,6 +15,10 @@ __all__ = ['Timeline', 'timeline', 'segments', 'common_length', 'windows', 'stac
 
 Interval = Tuple[float, float]
 
+#: Positions farther from the origin than this (m) are refused: a million kilometres, far beyond
+#: any map or UTM coordinate (northings are below 1e7 m).
+POSITION_LIMIT_M = 1e9
+
 
 @dataclass
 class Timeline:
@@ -49,7 +53,20 @@ def _intersect(a: List[Interval], b: List[Interval]) -> List[Interval]:
 def timeline(robots: List[Track], max_gap: Optional[float], where) -> Timeline:
     """Set each robot's ``t`` (seconds after the first stamp) and find the gaps (longer than
     ``max_gap``, default :data:`GAP_FACTOR` x the slowest median interval) and the stretches
-    where all robots are observed; ``where`` names the source (bag, file) in errors."""
+    where all robots are observed; ``where`` names the source (bag, file) in errors.
+
+    Raises:
+        TrackError: no common stretch, or a position beyond :data:`POSITION_LIMIT_M` (the
+            smoother squares positions: 1e160 m already overflows a float).
+    """
+    for r in robots:
+        far = np.abs(r.pos) > POSITION_LIMIT_M
+        if np.any(far):
+            k = int(np.nonzero(far.any(axis=1))[0][0])
+            raise TrackError(
+                f'{where}: {r.label} is at {r.pos[k].tolist()} m (sample {k}), beyond '
+                f'{POSITION_LIMIT_M:g} m from the origin: not a position in metres'
+            )
     t0_ns = min(int(r.ns[0]) for r in robots)
     for r in robots:
         r.t = (r.ns - t0_ns).astype(np.float64) * 1e-9

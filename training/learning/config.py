@@ -17,6 +17,7 @@ from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, get_scenar
 # A training config is invalid; the message names the field (one class with the nodes').
 from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.scenarios import Scenario, scenario_ref
+from knode_swarm_ros.core.yaml_file import load_yaml
 
 from .derive import AUTO, auto_fields
 from .objectives import OBJECTIVES
@@ -338,7 +339,7 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
 def _check_multistep(cfg: Dict[str, Any], raw: Dict[str, Any], pos_int) -> None:
     t, m = cfg['training'], cfg['multistep']
     _check(
-        t['objective'] in OBJECTIVES,
+        isinstance(t['objective'], str) and t['objective'] in OBJECTIVES,  # a list is no key of it
         'training.objective',
         t['objective'],
         f'must be one of {", ".join(OBJECTIVES)}',
@@ -483,8 +484,8 @@ def load_config(
         raise ConfigError(f'config file {path}: no such file')
     with open(path) as fh:
         try:
-            raw = yaml.safe_load(fh) or {}
-        except (yaml.YAMLError, ValueError, RecursionError) as exc:  # integers of > 4300 digits, deep nesting
+            raw = load_yaml(fh) or {}
+        except yaml.YAMLError as exc:
             raise ConfigError(f'config file {path}: not valid YAML ({exc})') from None
     if not isinstance(raw, dict):
         raise ConfigError(f'config file {path}: must be a mapping of sections, got {type(raw).__name__}')

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from knode_swarm_ros.core.errors import ConfigError
+from knode_swarm_ros.core.yaml_file import load_yaml
 
 from .records import write_json
 
@@ -63,7 +64,7 @@ def parse_axis(text: str) -> Tuple[str, List[Any]]:
     if not sep or not key or not values.strip():
         raise ConfigError(f'--axis {text!r}: expected KEY=VALUE,VALUE,... (e.g. policy.k=6,10 or seed=0,1,2)')
     try:
-        parsed = [yaml.safe_load(v) for v in values.split(',')]
+        parsed = [load_yaml(v) for v in values.split(',')]
     except yaml.YAMLError as exc:
         raise ConfigError(f'--axis {text!r}: a value is not valid YAML ({exc})') from None
     if len(set(map(repr, parsed))) != len(parsed):

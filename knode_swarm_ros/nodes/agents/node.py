@@ -28,6 +28,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_msgs.msg import String
 
+from knode_swarm_ros.core.yaml_file import load_yaml
 from knode_swarm_ros.logic.agent.agent_logic import DROP_REASONS
 from knode_swarm_ros.logic.agent.hosted import HostedAgents, format_ids, parse_ids
 from knode_swarm_ros.logic.common import ConfigError, status_json
@@ -57,8 +58,8 @@ def node_name_for(argv) -> str:
             try:
                 import yaml
 
-                ids = parse_ids(yaml.safe_load(value[len('ids:=') :]))
-            except (ConfigError, ValueError, ImportError):
+                ids = parse_ids(load_yaml(value[len('ids:=') :]))
+            except (ConfigError, ValueError, ImportError, yaml.YAMLError):
                 return 'agents'
             return f'agents_{ids[0]}_{ids[-1]}'
     return 'agents'

@@ -114,7 +114,11 @@ class _Interrupts:
             raise _StartupInterrupted()
 
     def _retry(self, _signum, frame) -> None:
-        if self.signal is not None:
+        # Only while the node is still built. A retry armed just before the build ended fires
+        # later, perhaps once the clean-up has begun, where _note would take it for a second
+        # signal and end the process before the node and the context are destroyed: the DDS
+        # participant's /dev/shm segment would stay behind.
+        if self.signal is not None and self.raising:
             self._note(self.signal, frame)
 
     def __exit__(self, *exc):

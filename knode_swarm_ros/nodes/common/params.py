@@ -18,6 +18,7 @@ from rclpy.exceptions import (
 )
 from rclpy.parameter import Parameter
 
+from knode_swarm_ros.core.yaml_file import load_yaml
 from knode_swarm_ros.logic.common import ConfigError
 
 __all__ = [
@@ -205,7 +206,7 @@ def shadowed_overrides(argv: Optional[Sequence[str]], node_name: str) -> List[Tu
         elif flag == '--params-file' and given:
             try:
                 with open(value) as fh:
-                    doc = yaml.safe_load(fh) or {}
+                    doc = load_yaml(fh) or {}
             except (OSError, yaml.YAMLError):
                 continue  # rcl reports an unreadable file itself
             names = set()

@@ -19,7 +19,14 @@ import os
 import signal
 import sys
 
-__all__ = ['STOP_SIGNALS', 'block_stop_signals', 'quiet_until_running', 'started_as_program']
+__all__ = [
+    'STOP_SIGNALS',
+    'block_stop_signals',
+    'note_stop_signals',
+    'quiet_until_running',
+    'started_as_launcher',
+    'started_as_program',
+]
 
 _PROGRAMS = ('agent', 'agents', 'simulator', 'recorder', 'monitor', 'lifecycle_manager')
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -34,6 +41,36 @@ def started_as_program() -> bool:
     if any(a == '-m' and b in modules for a, b in zip(argv, argv[1:])):
         return True
     return os.path.basename(sys.argv[0] if sys.argv else '') in _PROGRAMS
+
+
+def started_as_launcher() -> bool:
+    """Whether this process is the ``swarm`` launcher (``python -m knode_swarm_ros.nodes.swarm``
+    or its console script)."""
+    argv = list(getattr(sys, 'orig_argv', None) or [])
+    if any(a == '-m' and b == 'knode_swarm_ros.nodes.swarm' for a, b in zip(argv, argv[1:])):
+        return True
+    return os.path.basename(sys.argv[0] if sys.argv else '') == 'swarm'
+
+
+_noted: list = []
+
+
+def _note(signum, _frame) -> None:
+    _noted.append(signum)
+
+
+def note_stop_signals(carry: bool = False) -> list:
+    """From now on SIGINT, SIGTERM and SIGHUP are appended to the list returned instead of
+    raising KeyboardInterrupt wherever the main thread is; with ``carry``, the list holds those
+    noted since an earlier call already. For the launcher, which acts on them once its own
+    handlers are in: a user starts it from a shell, with nothing blocked, and its imports and
+    checks take a second or more (the policy's ``import torch`` even swallows a KeyboardInterrupt
+    raised inside it)."""
+    global _noted
+    _noted = list(_noted) if carry else []
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _note)
+    return _noted
 
 
 def block_stop_signals() -> None:

@@ -23,6 +23,11 @@ FastDDS shared-memory cleanup; :mod:`.report`: the summary and the figure; - :mo
 agents spread over processes and network namespaces.
 """
 
+from ..common.startup import note_stop_signals, started_as_launcher
+
+if started_as_launcher():  # before the imports below (a second or more): Ctrl-C is noted, no traceback
+    note_stop_signals()
+
 from .cli import build_parser, main
 from .commands import PACKAGE, build_commands, child_environment, node_commands
 from .plan import AGENT_MB, DOMAIN_RANGE, MAX_ROBOTS, NODE_MB, Plan, available_memory_mb, plan_run

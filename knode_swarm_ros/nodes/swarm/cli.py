@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import signal
 import sys
 from typing import List
 
 from knode_swarm_ros.logic.common import EXIT_CONFIG, EXIT_OK, MODES, ConfigError
 from knode_swarm_ros.nodes.agent.link import add_link_arguments
+from knode_swarm_ros.nodes.common.startup import note_stop_signals, started_as_launcher
 
 from . import hosting, robot_model
 from .console import say as _say
@@ -178,11 +178,10 @@ def main(argv=None):
     """Entry point of the ``swarm`` executable."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    # A signal during the checks is noted and acted on once run() has its own handlers: the
-    # policy's `import torch` swallows a KeyboardInterrupt raised inside it (measured: 1 in 10).
-    pending: List[int] = []
-    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(s, lambda signum, _frame: pending.append(signum))
+    # A signal during the checks (or the imports, when started as the launcher) is noted and acted
+    # on once run() has its own handlers: the policy's `import torch` swallows a KeyboardInterrupt
+    # raised inside it (measured: 1 in 10).
+    pending: List[int] = note_stop_signals(carry=started_as_launcher())
     try:
         plan = plan_run(args)
     except ConfigError as exc:

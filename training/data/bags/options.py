@@ -9,6 +9,7 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from knode_swarm_ros.bag import BagError
+from knode_swarm_ros.core.yaml_file import load_yaml
 
 from ..tracks import GAP_FACTOR, ResampleOptions, check_resample_options
 
@@ -59,7 +60,7 @@ def parse_id_map(items: Sequence[str]) -> Dict[str, int]:
             import yaml
 
             try:
-                data = yaml.safe_load(path.read_text(encoding='utf-8'))
+                data = load_yaml(path.read_text(encoding='utf-8'))
             except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
                 raise BagError(f'--id-map {item}: not a readable YAML file ({exc})') from None
             if not isinstance(data, dict) or not data:
