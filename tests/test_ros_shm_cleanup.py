@@ -205,3 +205,49 @@ def test_a_signal_while_the_node_is_built_ends_the_start_up_cleanly(
     # them: a concurrent copy of the suite once left this domain's port file (CI, 1 run in 5 cases)
     segments = {name for name in held if 'port' not in name}
     assert shm_left_by(segments) == [], f'{node} left its shared memory segment\n{text[-2000:]}'
+
+
+@pytest.mark.parametrize('node', ['recorder', 'agent'])
+def test_a_node_whose_launcher_died_stops_cleanly_on_its_broken_pipe(
+    node, tmp_path, untrained_policies, ros_domain_id
+):
+    """The launcher SIGKILLed: its children get SIGTERM (PR_SET_PDEATHSIG) with their stdout and
+    stderr a pipe nobody reads any more. That must not cut their clean-up short (the recorder
+    saves, then the node and its DDS files go)."""
+    import subprocess
+    import sys
+
+    from node_processes import WAIT_S
+
+    from knode_swarm_ros.nodes.common.startup import block_stop_signals
+
+    traffic = start(
+        ['-m', 'knode_swarm_ros.nodes.simulator', '--ros-args', *TRAFFIC],
+        open(tmp_path / 'traffic.log', 'wb'),
+    )
+    try:
+        argv, ready = _node_argv(node, tmp_path, untrained_policies['flock2d'])
+        env = dict(__import__('os').environ, PYTHONUNBUFFERED='1', OMP_NUM_THREADS='1')
+        proc = subprocess.Popen(
+            [sys.executable, *argv],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=block_stop_signals,
+        )
+        seen = b''
+        deadline = time.monotonic() + WAIT_S
+        while ready.encode() not in seen and time.monotonic() < deadline and proc.poll() is None:
+            seen += proc.stdout.read1(4096)
+        assert ready.encode() in seen, seen.decode(errors='replace')
+        held = _held_while_running(proc)
+        proc.stdout.close()  # the reader is gone, as with a killed launcher
+        rc = stop(proc, signal.SIGTERM)
+        assert rc == 0, f'{node} exited {rc} on a broken pipe'
+        segments = {name for name in held if 'port' not in name}
+        assert shm_left_by(segments) == [], f'{node} left its segment after its pipe broke'
+        if node == 'recorder':
+            assert (tmp_path / 'rec.npz').is_file()  # saved all the same
+    finally:
+        assert stop(traffic, signal.SIGINT) == 0
