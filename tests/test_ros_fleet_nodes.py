@@ -115,7 +115,10 @@ def test_the_monitor_reads_a_fleets_poses_and_estimates_their_velocities(ros, tm
             ]
         )
     )
-    assert monitor.watch.levels == [None, 1]  # cf231 (id 4) untouched, cf5 (id 9) WARN, cf7 unknown
+    assert monitor.watch.levels.tolist() == [
+        -1,
+        1,
+    ]  # cf231 (id 4) never reported, cf5 (id 9) WARN, cf7 unknown
 
 
 def test_the_unicycle_output_takes_the_fleets_topic_frame_and_type(ros, tmp_path, untrained_policies):
