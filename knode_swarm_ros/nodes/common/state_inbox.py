@@ -22,8 +22,9 @@ from typing import Iterator, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.qos import QoSProfile
 
+from knode_swarm_ros.logic.contract import qos_specs
 from knode_swarm_ros.logic.contract.fleet import Fleet
 
 from . import qos
@@ -90,12 +91,7 @@ class StateInbox:
             start_parameter_services=False,
             enable_rosout=False,
         )
-        profile = qos_profile or QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=self.depth,
-            reliability=qos.ODOM.reliability,
-            durability=qos.ODOM.durability,
-        )
+        profile = qos_profile or qos.profile(qos_specs.ODOM._replace(depth=self.depth))
         odometry = fleet.state.type == 'odometry'
         try:
             self.subscriptions = [
