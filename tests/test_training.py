@@ -384,6 +384,32 @@ def test_grid_cells_are_resumable_and_skip_finished(tmp_path, monkeypatch):
     assert (tmp_path / 'grid' / 'heatmap_avd_final_mean.png').is_file()
 
 
+def test_grid_over_seeds_reports_the_mean_and_spread_of_each_seeds_grid(tmp_path, capsys):
+    from training.grid import main as grid_main
+
+    data, _ = _teacher_data(tmp_path)
+    cfg_path, _ = _config(tmp_path, training={'epochs': 1}, selection={'every': 0})
+    out = tmp_path / 'grid'
+    args = ['--config', cfg_path, '--data', data, '--out', str(out), '--d-cr', '2', '3', '--k', '3']
+    assert grid_main(args + ['--trajectories', '1', '--seeds', '0', '1']) == 0
+    seeds = [json.loads((out / f'seed{s}' / 'results.json').read_text()) for s in (0, 1)]
+    for s, r in zip((0, 1), seeds):
+        assert sorted(r['finished']) == ['dcr2_k3', 'dcr3_k3']
+        assert yaml.safe_load((out / f'seed{s}' / 'dcr2_k3' / 'config.yaml').read_text())['seed'] == s
+    both = json.loads((out / 'results.json').read_text())
+    assert both['seeds'] == [0, 1]
+    for key, table in both['tables'].items():
+        per_seed = np.array([r['tables'][key] for r in seeds])  # [2, d_cr, k]
+        np.testing.assert_allclose(table['mean'], per_seed.mean(axis=0))
+        np.testing.assert_allclose(table['sd'], per_seed.std(axis=0, ddof=1))
+        assert table['seeds'] == [[2], [2]]
+    # two seeds train two different models: the spread of some table is not zero
+    assert any(np.any(np.array(t['sd']) > 0) for t in both['tables'].values())
+    assert (out / 'heatmap_avd_final_mean.png').is_file() and 'sd ' in (out / 'summary.md').read_text()
+    assert grid_main(args + ['--seeds', '0', '--set', 'seed=3']) == 2
+    assert '--seeds' in capsys.readouterr().err
+
+
 def test_selection_rolls_out_perturbed_copies_of_each_start(tmp_path):
     data, _ = _teacher_data(tmp_path, trajectories=5)
     starts = []

@@ -11,11 +11,13 @@ interrupted one resumes from its checkpoint (run the same command again). ``--wo
 cells at a time on a local Ray (``--address``: a Ray cluster), as ``training.sweep`` does
 (training/learning/sweep.py: a failed cell retried once, progress in ``OUT/sweep.log``, every
 cell's status in ``OUT/sweep.json``); several copies of the command at once also share the cells.
-``--collect`` only gathers finished cells; a finished cell
-evaluated with other ``--trajectories``/``--rollouts``/``--perturb`` is evaluated again without
-training. Writes ``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``summary.md``
-under ``--out`` (boids3d: amd, POD-KLD, share of boids leaving the cube, share of rollouts with
-an escape, subswarms).
+``--collect`` only gathers finished cells; a finished cell evaluated with other
+``--trajectories``/``--rollouts``/``--perturb`` is evaluated again without training. Writes
+``heatmap_<metric>_<mean|median>.png``, ``results.json`` and ``summary.md`` under ``--out``
+(boids3d: amd, POD-KLD, share of boids leaving the cube, share of rollouts with an escape,
+subswarms). ``--seeds 0 1 2`` runs the whole grid once per training seed, each an ordinary grid
+in ``OUT/seed<S>/``, and writes the mean and spread over the seeds of every cell's metrics to
+``OUT/results.json``, ``OUT/summary.md`` and ``OUT/heatmap_<metric>_<stat>.png`` (the means).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from knode_swarm_ros.core import get_scenario, load_policy
 from knode_swarm_ros.core.cli import cli, parse_set
 from knode_swarm_ros.core.errors import EXIT_RUN_FAILED, KnodeError
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_policy
+from training.assessment.stats import mean_ci
 from training.learning.config import load_config
 from training.learning.records import write_json
 from training.learning.sweep import Cell, check_files, run_cells
@@ -240,6 +243,69 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
     return results
 
 
+def collect_seeds(out: str, seeds: List[int], per_seed: List[Dict[str, Any]]) -> Dict[str, Any]:
+    """Mean and spread over training seeds of every table of the per-seed grids ``per_seed``
+    (:func:`collect`'s results, one per seed, run in ``OUT/seed<S>``).
+
+    A cell's value for a seed is that seed's statistic over its rollouts (e.g. the mean final amd);
+    over the seeds: the mean, the sample standard deviation and the 95 % t half-width
+    (:func:`~training.assessment.stats.mean_ci`), with the number of seeds that finished the cell.
+    """
+    first = per_seed[0]
+    d_crs, ks = first['d_cr'], first['k']
+    tables: Dict[str, Any] = {}
+    for key in first['tables']:
+        stack = np.array([r['tables'][key] for r in per_seed], dtype=np.float64)  # [seeds, d_cr, k]
+        mean, sd, half = (np.full(stack.shape[1:], np.nan) for _ in range(3))
+        n = np.isfinite(stack).sum(axis=0)
+        for i, j in np.ndindex(*stack.shape[1:]):
+            v = stack[:, i, j][np.isfinite(stack[:, i, j])]
+            if v.size:
+                m, h = mean_ci(v, t=True)
+                mean[i, j], half[i, j] = m, h
+                sd[i, j] = v.std(ddof=1) if v.size > 1 else 0.0
+        tables[key] = {'mean': mean.tolist(), 'sd': sd.tolist(), 'ci95': half.tolist(), 'seeds': n.tolist()}
+        figures.heatmap(
+            os.path.join(out, f'heatmap_{key}.png'),
+            mean,
+            d_crs,
+            ks,
+            f'{key.replace("_final", " (final)")}, mean over {len(seeds)} seeds',
+        )
+    results = {'scenario': first['scenario'], 'd_cr': d_crs, 'k': ks, 'seeds': seeds, 'tables': tables}
+    results['truth'] = first.get('truth')
+    write_json(os.path.join(out, 'results.json'), results)
+    lines = [
+        f'# Grid search: {first["scenario"]}, {len(seeds)} training seeds ({", ".join(map(str, seeds))})',
+        '',
+        'Each cell: the mean over the seeds of the per-seed statistic ± the 95 % t half-width over the '
+        'seeds and their standard deviation; a cell fewer seeds finished says how many.',
+        '',
+    ]
+    for key, table in tables.items():
+        lines += [
+            f'## {key}',
+            '',
+            '| d_cr \\ k | ' + ' | '.join(map(str, ks)) + ' |',
+            '| --- ' * (len(ks) + 1) + '|',
+        ]
+        for i, d in enumerate(d_crs):
+            row = []
+            for j in range(len(ks)):
+                mean, half, sd, count = (table[f][i][j] for f in ('mean', 'ci95', 'sd', 'seeds'))
+                if not count:
+                    row.append('-')
+                    continue
+                txt = f'{mean:.3g}' if count == 1 else f'{mean:.3g} ± {half:.2g} (sd {sd:.2g})'
+                row.append(txt + ('' if count == len(seeds) else f' [{count} seeds]'))
+            lines.append(f'| {d:g} | ' + ' | '.join(row) + ' |')
+        lines.append('')
+    if results['truth']:
+        lines.append('Ground truth: ' + ', '.join(f'{k} {v:.3g}' for k, v in results['truth'].items()))
+    open(os.path.join(out, 'summary.md'), 'w').write('\n'.join(lines) + '\n')
+    return results
+
+
 @cli('python -m training.grid')
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m training.grid', description=__doc__.split('\n\n')[0])
@@ -262,6 +328,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument(
         '--steps', type=int, default=None, help='evaluation steps (default: test trajectory length)'
     )
+    parser.add_argument(
+        '--seeds',
+        type=int,
+        nargs='+',
+        default=[],
+        help='run the grid once per training seed (OUT/seed<S>) and report mean and spread over them',
+    )
     parser.add_argument('--collect', action='store_true', help='only gather finished cells')
     parser.add_argument(
         '--workers', type=int, default=1, help='cells at a time (default 1: in this process; more: Ray)'
@@ -276,40 +349,53 @@ def main(argv: Optional[List[str]] = None) -> int:
     if not (np.isfinite(args.perturb) and args.perturb >= 0):
         raise KnodeError(f'--perturb must be a finite number >= 0, got {args.perturb}')
     base = parse_set(args.set)
+    if args.seeds and 'seed' in base:
+        raise KnodeError('--seeds and --set seed=... both set the training seed: give one of them')
     cfg0 = load_config(args.config, base)
     torch.set_num_threads(cfg0['training']['threads'])
+    # one grid per training seed, each in its own directory (OUT itself without --seeds)
+    grids = [(os.path.join(args.out, f'seed{s}'), {**base, 'seed': s}) for s in args.seeds] or [
+        (args.out, base)
+    ]
     failed = []
     if not args.collect:
         check_files('--data', [args.data])
         # Ray's workers may start elsewhere (a cluster): absolute paths for them
         ray = args.workers > 1 or args.address
-        data, out = (os.path.abspath(args.data), os.path.abspath(args.out)) if ray else (args.data, args.out)
+        data = os.path.abspath(args.data) if ray else args.data
         cells = []
-        for d in args.d_cr:
-            for k in args.k:
-                cfg = load_config(args.config, {**base, 'policy.d_cr': d, 'policy.k': k})
-                run_dir = os.path.join(out, cell_name(d, k))
-                job = functools.partial(
-                    run_cell,
-                    cfg,
-                    data,
-                    run_dir,
-                    args.trajectories,
-                    rollouts=args.rollouts,
-                    perturb=args.perturb,
-                    steps=args.steps,
-                )
-                cells.append(Cell(cell_name(d, k), {'policy.d_cr': d, 'policy.k': k}, run_dir, job))
-        header = {
-            'config': args.config,
-            'data': args.data,
-            'set': base,
-            'axes': {'policy.d_cr': args.d_cr, 'policy.k': args.k},
-        }
+        for grid_out, overrides in grids:
+            out = os.path.abspath(grid_out) if ray else grid_out
+            prefix = '' if not args.seeds else f'seed{overrides["seed"]}/'
+            for d in args.d_cr:
+                for k in args.k:
+                    cfg = load_config(args.config, {**overrides, 'policy.d_cr': d, 'policy.k': k})
+                    run_dir = os.path.join(out, cell_name(d, k))
+                    job = functools.partial(
+                        run_cell,
+                        cfg,
+                        data,
+                        run_dir,
+                        args.trajectories,
+                        rollouts=args.rollouts,
+                        perturb=args.perturb,
+                        steps=args.steps,
+                    )
+                    values = {'policy.d_cr': d, 'policy.k': k}
+                    if args.seeds:
+                        values['seed'] = overrides['seed']
+                    cells.append(Cell(prefix + cell_name(d, k), values, run_dir, job))
+        axes = {'policy.d_cr': args.d_cr, 'policy.k': args.k}
+        if args.seeds:
+            axes['seed'] = args.seeds
+        header = {'config': args.config, 'data': args.data, 'set': base, 'axes': axes}
         records = run_cells(cells, args.out, args.workers, args.address, header=header)
         failed = [r['name'] for r in records if r['status'] == 'failed']
-    results = collect(args.out, cfg0['scenario'], args.d_cr, args.k)
-    print(f'{len(results["finished"])} cells finished; wrote {args.out}/results.json and heat maps')
+    per_seed = [collect(grid_out, cfg0['scenario'], args.d_cr, args.k) for grid_out, _ in grids]
+    if args.seeds:
+        collect_seeds(args.out, args.seeds, per_seed)
+    finished = sum(len(r['finished']) for r in per_seed)
+    print(f'{finished} cells finished; wrote {args.out}/results.json and heat maps')
     if failed:
         print(f'failed twice: {", ".join(failed)} (see {args.out}/sweep.json)', file=sys.stderr)
         return EXIT_RUN_FAILED
