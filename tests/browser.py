@@ -52,6 +52,11 @@ class Chromium:
         )
         self.ids = itertools.count(1)
         self.target = self._page_target()
+        # One DevTools session for the browser's life: Chromium drops a session's overrides (the
+        # viewport's size below) when that session closes.
+        self.loop = asyncio.new_event_loop()
+        self.http = self.loop.run_until_complete(_session())
+        self.ws = self.loop.run_until_complete(self.http.ws_connect(self.target, max_msg_size=0))
         # The viewport itself, not the window (whose frame takes some of it), is ``size``.
         self.call(
             'Emulation.setDeviceMetricsOverride',
@@ -77,19 +82,17 @@ class Chromium:
 
     def call(self, method: str, **params):
         """One DevTools command's result."""
-        return asyncio.run(self._call(method, params))
+        return self.loop.run_until_complete(asyncio.wait_for(self._call(method, params), WAIT_S))
 
     async def _call(self, method, params):
-        async with aiohttp.ClientSession() as session:
-            async with session.ws_connect(self.target, max_msg_size=0) as ws:
-                mid = next(self.ids)
-                await ws.send_str(json.dumps({'id': mid, 'method': method, 'params': params}))
-                async for msg in ws:
-                    reply = json.loads(msg.data)
-                    if reply.get('id') == mid:
-                        if 'error' in reply:
-                            raise RuntimeError(f'{method}: {reply["error"]}')
-                        return reply['result']
+        mid = next(self.ids)
+        await self.ws.send_str(json.dumps({'id': mid, 'method': method, 'params': params}))
+        async for msg in self.ws:
+            reply = json.loads(msg.data)
+            if reply.get('id') == mid:
+                if 'error' in reply:
+                    raise RuntimeError(f'{method}: {reply["error"]}')
+                return reply['result']
         raise RuntimeError(f'{method}: no reply')
 
     def evaluate(self, expression: str):
@@ -116,6 +119,10 @@ class Chromium:
         return np.asarray(Image.open(io.BytesIO(data)).convert('RGB'))
 
     def close(self) -> None:
+        if not self.loop.is_closed():
+            self.loop.run_until_complete(self.ws.close())
+            self.loop.run_until_complete(self.http.close())
+            self.loop.close()
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, 15)
             try:
@@ -124,6 +131,10 @@ class Chromium:
                 os.killpg(self.proc.pid, 9)
                 self.proc.wait()
         shutil.rmtree(self.profile, ignore_errors=True)
+
+
+async def _session() -> aiohttp.ClientSession:
+    return aiohttp.ClientSession()  # made inside the loop that will use it
 
 
 async def _get_json(url: str):
