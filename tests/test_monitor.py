@@ -101,6 +101,10 @@ def test_receive_many_files_as_one_at_a_time_and_trails_keep_the_newest():
         -1,
         DT_NS,
     ]
+    unsorted = SwarmWatch('flock2d', [30, -5, 7], d_cr=2.5, k=3)  # ids: any distinct integers, any order
+    filed = unsorted.receive_many([7, 99, 30, -5, -6], [DT_NS] * 5, states[:5], 1.0)
+    assert filed.tolist() == [True, False, True, True, False]
+    assert np.array_equal(unsorted.states, states[[2, 3, 0]])
     # trails: a point per robot every 0.2 s at most (the first state filed then), the last 3
     assert all(np.array_equal(a, b) for a, b in zip(one.trails(), many.trails()))
     trail = many.trails()
@@ -212,6 +216,28 @@ def test_the_web_server_serves_the_page_and_the_newest_tick():
         server.stop()
     assert 'window.monitor' in page and 'http://' not in page.replace('http://localhost', '')
     assert (hello, json.loads(first)['step'], json.loads(second)['step']) == ('{"type":"hello"}', 1, 2)
+
+
+def test_the_web_server_closes_open_pages_when_it_stops():
+    import aiohttp
+
+    from knode_swarm_ros.nodes.monitor.web import WebServer
+
+    server = WebServer('127.0.0.1', 0)
+    server.start()
+    server.publish('{"type":"hello"}', '{"type":"tick","step":1}')
+
+    async def watch():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(f'ws://127.0.0.1:{server.port}/ws') as ws:
+                await ws.receive(timeout=60)  # hello
+                await ws.receive(timeout=60)  # the tick
+                await asyncio.get_running_loop().run_in_executor(None, server.stop)
+                closing = await ws.receive(timeout=60)
+                return closing.type, closing.data  # the frame's code (the reply may meet a closed socket)
+
+    # the page is told the server is going away (its clean-up does not wait for the page to leave)
+    assert asyncio.run(watch()) == (aiohttp.WSMsgType.CLOSE, aiohttp.WSCloseCode.GOING_AWAY)
 
 
 def _plan(tmp_path, *extra):

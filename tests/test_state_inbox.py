@@ -1,9 +1,10 @@
 """States taken on demand (knode_swarm_ros/nodes/common/state_inbox.py) and the Odometry
-decoder it reads with (conversions.OdomStream): known messages decoded, each robot's queue
+decoder it reads with (odom_batch.OdomBatch): known messages decoded, each robot's queue
 taken in order, malformed bytes and another robot's Odometry dropped and counted.
 
 The decoder without ROS; the inbox in this process on an isolated ROS domain."""
 
+import struct
 import time
 
 import numpy as np
@@ -18,12 +19,12 @@ from knode_swarm_ros.logic.contract.fleet import default_fleet, load_fleet
 from knode_swarm_ros.nodes.common import qos
 from knode_swarm_ros.nodes.common.conversions import (
     CdrError,
-    OdomStream,
     fields_to_cdr,
     odom_fields_from_cdr,
     odom_to_cdr,
     pose_to_cdr,
 )
+from knode_swarm_ros.nodes.common.odom_batch import OdomBatch
 
 WAIT_S = 30.0
 
@@ -42,27 +43,66 @@ def _foreign_odometry(ns, x, y, yaw, child='robot_2/base_footprint'):
     return serialize_message(msg)
 
 
-def test_odom_stream_reads_what_the_full_decoder_reads():
+def _full(data):
+    """What the full decoder reads (stamp, child, pose, linear), or None where it refuses."""
+    try:
+        ns, child, pose, linear, _ = odom_fields_from_cdr(data)
+    except CdrError:
+        return None
+    return ns, child, pose, linear
+
+
+def _batch(fields, j):
+    if fields.bad[j]:
+        return None
+    return int(fields.stamps[j]), fields.children[j], tuple(fields.poses[j]), tuple(fields.linears[j])
+
+
+def _big_endian(ns, frame, child, pose, linear):
+    """An Odometry in big-endian CDR (another DDS may send one; rmw_fastrtps sends little-endian)."""
+    buf = bytearray(b'\x00\x00\x00\x00') + struct.pack('>iI', *divmod(ns, 10**9))
+    for text in (frame, child):
+        buf += b'\x00' * (-(len(buf) - 4) % 4) + struct.pack('>I', len(text) + 1) + text.encode() + b'\x00'
+    buf += b'\x00' * (-(len(buf) - 4) % 8)
+    return bytes(
+        buf + struct.pack('>7d', *pose) + bytes(8 * 36) + struct.pack('>6d', *linear, 0, 0, 0) + bytes(8 * 36)
+    )
+
+
+def test_odom_batch_reads_what_the_full_decoder_reads():
     rng = np.random.default_rng(0)
-    stream = OdomStream()
     messages = [odom_to_cdr(3, 10**9 * k + 7, rng.normal(size=4), 'flock2d') for k in range(20)]
     messages += [_foreign_odometry(5 * 10**8 * k, *rng.normal(size=3)) for k in range(20)]  # other frames
     messages += [odom_to_cdr(12, 10**6 * k, rng.normal(size=4), 'flock2d') for k in range(5)]  # longer name
     messages += [fields_to_cdr(3, 99, (1, 2, 3), (0, 0, 0, 1), (4, 5, 6), (0, 0, 0), child_frame_id='')]
-    for data in messages:
-        ns, child, pose, linear, _ = odom_fields_from_cdr(data)
-        assert stream.read(data) == (ns, child, pose, linear)
-    assert stream.read(messages[-1])[:2] == (99, '')
+    messages += [odom_to_cdr(3, 2**31 * 10**9 - 1, np.full(4, np.nan), 'flock2d')]  # the largest stamp
+    messages += [_big_endian(7, 'world', 'robot_3/base_link', np.arange(7.0), [0.5, -1.0, 2.0])]
+    batch = OdomBatch(4)
+    # the same messages on four topics, in batches of several sizes: the first of a layout is
+    # read in full, those after it from the layout kept, and both read as the full decoder does
+    topics = rng.integers(0, 4, size=len(messages))
+    for size in (1, 7, len(messages)):
+        for at in range(0, len(messages), size):
+            fields = batch.read(topics[at : at + size], messages[at : at + size])
+            for j, data in enumerate(messages[at : at + size]):
+                expected, got = _full(data), _batch(fields, j)
+                assert (got is None) == (expected is None)
+                if got is not None:  # NaN != NaN: compare the bits
+                    assert got[:2] == expected[:2]
+                    bits = np.array(got[2] + got[3]).view(np.int64)
+                    assert np.array_equal(bits, np.array(expected[2] + expected[3]).view(np.int64))
 
 
-def test_odom_stream_refuses_what_the_full_decoder_refuses():
-    stream = OdomStream()
+def test_odom_batch_refuses_what_the_full_decoder_refuses():
+    batch = OdomBatch(1)
     good = odom_to_cdr(3, 10**9, np.ones(4), 'flock2d')
-    stream.read(good)
+    batch.read([0], [good])
+    changed_frame = good.replace(b'robot_3', b'robot_4')
     for bad in (good[:-8], good + b'\x00' * 8, b'\x00\x01\x00\x00junk', b'', b'\x00\x05' + good[2:]):
-        with pytest.raises(CdrError):
-            stream.read(bad)
-        assert stream.read(good)[0] == 10**9  # a bad message spoils nothing after it
+        fields = batch.read([0, 0, 0], [good, bad, good])
+        assert fields.bad.tolist() == [False, True, False]
+        assert fields.stamps.tolist() == [10**9, 0, 10**9]  # a bad message spoils nothing after it
+    assert batch.read([0, 0], [changed_frame, good]).children == ['robot_4/base_link', 'robot_3/base_link']
 
 
 @pytest.fixture

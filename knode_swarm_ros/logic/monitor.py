@@ -114,6 +114,7 @@ class Throttle:
 
 _UNHEARD, _LOST, _STALE = HEALTH.index('unheard'), HEALTH.index('lost'), HEALTH.index('stale')
 _NO_LEVEL = -1
+_HEALTH_NAMES = np.array(HEALTH, dtype=object)
 
 
 class SwarmWatch:
@@ -134,6 +135,9 @@ class SwarmWatch:
         self.spec = get_scenario(scenario)
         self.ids = [int(i) for i in robot_ids]
         self.index = {r: n for n, r in enumerate(self.ids)}
+        ids = np.array(self.ids, dtype=np.int64)
+        self._by_id = np.argsort(ids, kind='stable')  # rows of the ids in ascending order
+        self._sorted_ids = ids[self._by_id]
         n, d, p = len(self.ids), self.spec.state_dim, self.spec.position_dim
         self.d_cr, self.k = float(d_cr), int(k)
         self.dt = float(dt or self.spec.dt)
@@ -159,17 +163,23 @@ class SwarmWatch:
     def receive_many(self, robots: Sequence[int], stamps_ns, states: np.ndarray, wall: float) -> np.ndarray:
         """:meth:`receive` of states ``[m, d]`` of ``robots [m]`` stamped ``stamps_ns [m]``, in
         order (a robot's later state counts after its earlier one); returns which were filed [m]."""
-        rows = np.array([self.index.get(int(r), -1) for r in robots], dtype=np.int64)
+        rows = self._rows(robots)
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         states = np.asarray(states, dtype=float).reshape(len(rows), -1)
         filed = np.zeros(len(rows), dtype=bool)
         known = np.nonzero(rows >= 0)[0]
-        if len(np.unique(rows[known])) == len(known):  # one state per robot: all at once
+        if np.bincount(rows[known], minlength=1).max() <= 1:  # one state per robot: all at once
             filed[known] = self._file(rows[known], stamps[known], states[known], wall)
         else:  # several states of a robot (poses): in order, each against the newest filed
             for m in known:
                 filed[m] = self._file(rows[m : m + 1], stamps[m : m + 1], states[m : m + 1], wall)[0]
         return filed
+
+    def _rows(self, robots: Sequence[int]) -> np.ndarray:
+        """Rows of ``robots`` (ids), -1 for an id not watched."""
+        robots = np.asarray(robots, dtype=np.int64).reshape(-1)
+        at = np.minimum(np.searchsorted(self._sorted_ids, robots), len(self.ids) - 1)
+        return np.where(self._sorted_ids[at] == robots, self._by_id[at], -1)
 
     def _file(self, rows: np.ndarray, stamps: np.ndarray, states: np.ndarray, wall: float) -> np.ndarray:
         """File states of distinct ``rows``; returns which were newer and finite."""
@@ -195,14 +205,15 @@ class SwarmWatch:
     def health_codes(self, wall: float) -> np.ndarray:
         """Health of every robot at wall time ``wall`` as indices into :data:`HEALTH` ``[n]``."""
         age = wall - self.arrived
-        level = np.where(self.levels == _NO_LEVEL, 0, np.clip(self.levels, 0, 2))  # 3 (STALE): error
-        return np.select(
-            [self.stamps < 0, age > self.lost_after, age > self.stale_after], [_UNHEARD, _LOST, _STALE], level
-        )
+        codes = np.where(self.levels == _NO_LEVEL, 0, np.clip(self.levels, 0, 2))  # 3 (STALE): error
+        codes[age > self.stale_after] = _STALE  # each overruled by the next
+        codes[age > self.lost_after] = _LOST
+        codes[self.stamps < 0] = _UNHEARD
+        return codes
 
     def health(self, wall: float) -> List[str]:
         """Health of every robot at wall time ``wall`` (see the module doc)."""
-        return [HEALTH[c] for c in self.health_codes(wall).tolist()]
+        return _HEALTH_NAMES[self.health_codes(wall)].tolist()
 
     def trails(self) -> List[np.ndarray]:
         """Each robot's trail ``[m_i, p]``, oldest first."""
@@ -332,7 +343,7 @@ def tick_message(snap: Snapshot) -> str:
         'c': [round(snap.centre[0], 3), round(snap.centre[1], 3)],
         'p': _mm(snap.positions),
         'v': _mm(snap.directions),
-        'h': ''.join(HEALTH_CODES[h] for h in snap.health),
+        'h': ''.join(map(HEALTH_CODES.__getitem__, snap.health)),
     }
     if snap.links is not None:
         msg['l'] = snap.links.ravel().tolist()

@@ -59,7 +59,6 @@ __all__ = [
     'fields_to_cdr',
     'odom_from_cdr',
     'odom_fields_from_cdr',
-    'OdomStream',
     'CdrError',
     'TWIST_FRAMES',
     'command_msg_type',
@@ -243,46 +242,6 @@ def odom_fields_from_cdr(
         raise CdrError(f'truncated Odometry ({len(data)} bytes): {exc}') from None
     ns = int(sec) * 1_000_000_000 + int(nanosec)
     return ns, frames[1], pose, twist[:3], twist[3:]
-
-
-class OdomStream:
-    """:func:`odom_fields_from_cdr` of one topic's serialized Odometries, its frames read once.
-
-    A publisher's header strings do not change from message to message, and the CDR layout
-    depends only on them and the encapsulation: a message whose bytes before the pose (the stamp
-    aside) and length equal the last fully read one's has the same layout and the same
-    ``child_frame_id``, so only its stamp, pose and twist.linear are unpacked, at the offsets
-    found then (a monitor reads 200 robots' Odometry every tick). Anything else is read in full.
-    """
-
-    _TAIL = 56 + 8 * 36 + 48 + 8 * 36  # pose, covariance, twist, covariance: fixed size
-
-    def __init__(self):
-        self._key: Optional[bytes] = None  # bytes 0..4 and 12..pose of the last message read in full
-        self._size = -1
-        self._child = ''
-        self._stamp = self._pose = self._linear = None
-
-    def read(self, data: bytes) -> Tuple[int, str, Tuple[float, ...], Tuple[float, ...]]:
-        """(stamp ns, child_frame_id, pose (x, y, z, qx, qy, qz, qw), twist.linear [3]).
-
-        Raises:
-            CdrError: not a serialized Odometry (see :func:`odom_fields_from_cdr`).
-        """
-        at = len(data) - self._TAIL
-        if len(data) == self._size and data[:4] + data[12:at] == self._key:
-            sec, nanosec = self._stamp.unpack_from(data, 4)
-            linear = self._linear.unpack_from(data, at + 56 + 8 * 36)
-            return sec * 1_000_000_000 + nanosec, self._child, self._pose.unpack_from(data, at), linear
-        ns, child, pose, linear, _ = odom_fields_from_cdr(data)
-        e = '<' if data[1] == 1 else '>'
-        self._stamp, self._pose, self._linear = (
-            struct.Struct(e + 'iI'),
-            struct.Struct(e + '7d'),
-            struct.Struct(e + '3d'),
-        )
-        self._key, self._size, self._child = bytes(data[:4]) + bytes(data[12:at]), len(data), child
-        return ns, child, pose, linear
 
 
 def odom_from_cdr(

@@ -9,8 +9,8 @@ rclpy's executor, without the callback), decodes it and returns it as arrays: ro
 the fleet's order, each robot's messages oldest first.
 
 Decoded are the fields a state needs, as they are on the wire: the stamp, the position, the
-orientation and, for an Odometry, twist.linear (:class:`~.conversions.OdomStream`; a pose has
-no twist: zeros). The caller maps them to states (``rep105.fields_to_states``, or
+orientation and, for an Odometry, twist.linear (all of a take's Odometries at once,
+:class:`~.odom_batch.OdomBatch`; a pose has no twist: zeros). The caller maps them to states (``rep105.fields_to_states``, or
 ``PoseStates`` for poses). Dropped and counted: bytes that are not a message of the fleet's
 state type (:attr:`StateInbox.malformed`) and an Odometry whose ``child_frame_id`` is not the
 robot's own (:attr:`StateInbox.foreign`, ``Fleet.owns_frame``).
@@ -18,7 +18,7 @@ robot's own (:attr:`StateInbox.foreign`, ``Fleet.owns_frame``).
 
 from __future__ import annotations
 
-from typing import Iterator, NamedTuple, Optional, Sequence, Tuple
+from typing import Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from rclpy.node import Node
@@ -28,11 +28,10 @@ from knode_swarm_ros.logic.contract import qos_specs
 from knode_swarm_ros.logic.contract.fleet import Fleet
 
 from . import qos
-from .conversions import STATE_MESSAGES, CdrError, OdomStream, pose_from_cdr
+from .conversions import STATE_MESSAGES, CdrError, pose_from_cdr
+from .odom_batch import OdomBatch
 
 __all__ = ['StateInbox', 'Taken']
-
-_NO_TWIST = (0.0, 0.0, 0.0)
 
 
 class Taken(NamedTuple):
@@ -103,18 +102,16 @@ class StateInbox:
         except BaseException:  # a signal or a bad topic: the node's handle must not outlive us
             self.node.destroy_node()
             raise
-        # per robot: id, the subscription's handle, decoder (Odometry), the child_frame_id last
-        # found its own
-        self._robots = [
-            [int(rid), sub.handle, OdomStream() if odometry else None, None]
-            for rid, sub in zip(ids, self.subscriptions)
-        ]
+        self._ids = np.array(ids, dtype=np.int64)
+        self._handles = [sub.handle for sub in self.subscriptions]
+        self._odometry = OdomBatch(len(ids)) if odometry else None
+        self._own: List[Optional[str]] = [None] * len(ids)  # per robot, the child_frame_id last found its own
 
     def take_raw(self) -> Iterator[Tuple[int, bytes]]:
         """``(robot, bytes)`` of every message queued since the last call, robot by robot, each
         robot's oldest first, undecoded (for a caller with a decoder of its own, as the agent's)."""
         msg_type, depth = self.msg_type, self.depth
-        for rid, handle, _, _ in self._robots:
+        for rid, handle in zip(self._ids.tolist(), self._handles):
             for _ in range(depth):
                 got = handle.take_message(msg_type, True)
                 if got is None:
@@ -126,41 +123,48 @@ class StateInbox:
 
         Call it from the thread that destroys the inbox (the takes skip rclpy's guard against a
         handle destroyed meanwhile, which costs as much as a take)."""
-        robots, stamps, poses, linears = [], [], [], []
+        messages, rows = [], []
         msg_type, depth = self.msg_type, self.depth
-        for entry in self._robots:
-            rid, handle, stream, own = entry
+        for row, handle in enumerate(self._handles):
             # At most ``depth`` are queued: no take that can only come back empty (a message
             # arriving meanwhile waits for the next call).
             for _ in range(depth):
                 got = handle.take_message(msg_type, True)
                 if got is None:
                     break
-                try:
-                    if stream is not None:
-                        ns, child, pose, linear = stream.read(got[0])
-                        if child != own:
-                            if not self.fleet.owns_frame(child, rid):
-                                self.foreign += 1
-                                continue
-                            entry[3] = own = child
+                messages.append(got[0])
+                rows.append(row)
+        rows = np.array(rows, dtype=np.int64)
+        if self._odometry is not None:
+            fields = self._odometry.read(rows, messages)
+            stamps, poses, linears = fields.stamps, fields.poses, fields.linears
+            self.malformed += int(fields.bad.sum())
+            good, own = (~fields.bad).tolist(), self._own
+            for j, (row, child) in enumerate(zip(rows.tolist(), fields.children)):
+                if child != own[row] and good[j]:
+                    if self.fleet.owns_frame(child, int(self._ids[row])):
+                        own[row] = child
                     else:
-                        ns, _, pose = pose_from_cdr(got[0])
-                        linear = _NO_TWIST
+                        self.foreign += 1
+                        good[j] = False
+            keep = np.array(good, dtype=bool)
+        else:
+            stamps, poses = np.zeros(len(rows), dtype=np.int64), np.zeros((len(rows), 7))
+            linears, keep = np.zeros((len(rows), 3)), np.ones(len(rows), dtype=bool)
+            for j, message in enumerate(messages):
+                try:
+                    stamps[j], _, poses[j] = pose_from_cdr(message)
                 except CdrError:
                     self.malformed += 1
-                    continue
-                robots.append(rid)
-                stamps.append(ns)
-                poses.append(pose)
-                linears.append(linear)
-        pose = np.array(poses, dtype=np.float64).reshape(-1, 7)
+                    keep[j] = False
+        if not keep.all():
+            rows, stamps, poses, linears = rows[keep], stamps[keep], poses[keep], linears[keep]
         return Taken(
-            robots=np.array(robots, dtype=np.int64),
-            stamps=np.array(stamps, dtype=np.int64),
-            positions=pose[:, :3],
-            quaternions=pose[:, 3:],
-            linears=np.array(linears, dtype=np.float64).reshape(-1, 3),
+            robots=self._ids[rows],
+            stamps=stamps,
+            positions=poses[:, :3],
+            quaternions=poses[:, 3:],
+            linears=linears,
         )
 
     def destroy(self) -> None:

@@ -4,7 +4,8 @@
 elsewhere, so it works on a robot network without internet); ``GET /ws`` is a WebSocket that
 sends the run's hello message, then the newest tick each time one is published. A slow browser
 never holds anything up: each client is sent the newest tick once its previous send is done,
-ticks published in between are skipped (no queue grows). No rclpy here.
+ticks published in between are skipped (no queue grows). Frames go uncompressed: deflating a
+few kilobytes a tick cost the monitor more CPU than the bytes cost the network. No rclpy here.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import asyncio
 import ipaddress
 import threading
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Set
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 __all__ = ['WebServer', 'is_loopback', 'PAGE']
 
@@ -42,7 +43,8 @@ class WebServer:
         self.sent = 0  # tick messages sent, over every client
         self.clients = 0
         self._loop = asyncio.new_event_loop()
-        self._changed: Optional[asyncio.Condition] = None
+        self._waiting: Set[asyncio.Event] = set()  # one per client waiting for a new tick
+        self._sockets: Set[web.WebSocketResponse] = set()
         self._runner: Optional[web.AppRunner] = None
         self._thread = threading.Thread(target=self._loop.run_forever, name='monitor-web', daemon=True)
 
@@ -52,10 +54,10 @@ class WebServer:
         asyncio.run_coroutine_threadsafe(self._start(), self._loop).result(timeout=30)
 
     async def _start(self) -> None:
-        self._changed = asyncio.Condition()
         app = web.Application()
         app.router.add_get('/', self._page)
         app.router.add_get('/ws', self._socket)
+        app.on_shutdown.append(self._close_sockets)  # else the clean-up waits for open pages
         self._runner = web.AppRunner(app, access_log=None)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
@@ -67,20 +69,23 @@ class WebServer:
         self.hello = hello
         self.tick = tick
         if self.clients:
-            self._loop.call_soon_threadsafe(lambda: asyncio.ensure_future(self._notify()))
+            self._loop.call_soon_threadsafe(self._wake)
 
-    async def _notify(self) -> None:
-        async with self._changed:
-            self._changed.notify_all()
+    def _wake(self) -> None:
+        for event in self._waiting:
+            event.set()
 
     async def _page(self, _request) -> web.Response:
         return web.Response(text=PAGE.read_text(), content_type='text/html')
 
     async def _socket(self, request) -> web.WebSocketResponse:
-        ws = web.WebSocketResponse(heartbeat=30.0)
+        ws = web.WebSocketResponse(heartbeat=30.0, compress=False)
         await ws.prepare(request)
         self.clients += 1
-        reader = asyncio.ensure_future(self._drain(ws))
+        changed = asyncio.Event()
+        self._waiting.add(changed)
+        self._sockets.add(ws)
+        reader = asyncio.ensure_future(self._drain(ws, changed))
         try:
             while self.hello is None and not ws.closed:
                 await asyncio.sleep(0.1)
@@ -89,11 +94,8 @@ class WebServer:
             last = None
             while not ws.closed and not reader.done():
                 if self.tick is last:
-                    try:  # the timeout: notice a closed socket even when no tick comes
-                        async with self._changed:
-                            await asyncio.wait_for(self._changed.wait(), timeout=1.0)
-                    except asyncio.TimeoutError:
-                        pass
+                    await changed.wait()  # a new tick, or the page gone (_drain sets it)
+                    changed.clear()
                     continue
                 last = self.tick
                 await ws.send_str(last)
@@ -101,15 +103,24 @@ class WebServer:
         except ConnectionError:
             pass
         finally:
+            self._waiting.discard(changed)
+            self._sockets.discard(ws)
             self.clients -= 1
             reader.cancel()
         return ws
 
-    async def _drain(self, ws) -> None:
-        """Read (and ignore) what the page sends, so that a close is noticed."""
-        async for msg in ws:
-            if msg.type in (WSMsgType.CLOSE, WSMsgType.ERROR):
-                break
+    async def _drain(self, ws, changed: asyncio.Event) -> None:
+        """Read (and ignore) what the page sends, so that a close is noticed (``changed`` set)."""
+        try:
+            async for msg in ws:
+                if msg.type in (WSMsgType.CLOSE, WSMsgType.ERROR):
+                    break
+        finally:
+            changed.set()
+
+    async def _close_sockets(self, _app) -> None:
+        for ws in list(self._sockets):
+            await ws.close(code=WSCloseCode.GOING_AWAY, message=b'monitor stopping')
 
     def stop(self) -> None:
         if self._runner is not None and self._thread.is_alive():
