@@ -77,8 +77,7 @@ def test_a_killed_launcher_s_sweeper_removes_what_a_child_killed_with_it_left(
         also='simulator',
     )
     assert r.phase == 'running' and r.rc == -signal.SIGKILL, r
+    # No leftover of the run, and the sweeper has ended (run_round waits for it). Whether its line
+    # ("removed N FastDDS ...") is there is not checked: a concurrent suite's living launcher
+    # sweeps every new unlocked file too, ours among them.
     assert r.problems == [], (r, (tmp_path / 'launcher.out').read_text(errors='replace'))
-    assert (
-        '[swarm sweeper] the launcher ended without its clean-up: removed'
-        in (tmp_path / 'launcher.out').read_text()
-    )
