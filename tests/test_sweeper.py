@@ -82,6 +82,23 @@ def test_orders_are_read_until_end_and_junk_or_ended_pids_are_skipped():
     before, procs, ended = sweeper.read_orders(lines)
     assert before == {'fastrtps_a'} and list(procs) == [os.getpid()] and ended
     assert sweeper.read_orders(lines[:2]) == ({'fastrtps_a'}, {}, False)
+    assert sweeper.read_orders([lines[0][:-3], lines[3]]) == (None, {os.getpid(): procs[os.getpid()]}, False)
+
+
+def test_without_the_snapshot_it_sweeps_nothing(shm_dir):
+    # The launcher killed before the snapshot was written (or while writing it): every file
+    # would look new, other runs' leftovers too.
+    (shm_dir / 'fastrtps_port7411').write_bytes(b'')
+    cut = json.dumps({'before': sorted(os.listdir(shm_dir))})[:-5]
+    out = subprocess.run(
+        [sys.executable, str(Path(sweeper.__file__)), '--shm-dir', str(shm_dir)],
+        input=cut,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0 and out.stdout == '' and out.stderr == ''
+    assert sorted(os.listdir(shm_dir)) == ['fastrtps_old', 'fastrtps_old_el', 'fastrtps_port7411']
 
 
 def test_it_waits_for_the_run_s_processes_then_sweeps_only_new_unlocked_files(shm_dir):

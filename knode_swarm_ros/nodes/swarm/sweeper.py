@@ -111,10 +111,11 @@ def _start_time(pid: int) -> Optional[str]:
     return None if fields[0] in ('Z', 'X') else fields[19]
 
 
-def read_orders(lines: Iterable[str]) -> Tuple[set, Dict[int, str], bool]:
-    """The snapshot, the run's live processes (pid -> start time) and whether ``end`` came,
-    read until ``end`` or the end of ``lines``. Lines that are not orders are skipped."""
-    before: set = set()
+def read_orders(lines: Iterable[str]) -> Tuple[Optional[set], Dict[int, str], bool]:
+    """The snapshot (None if none came), the run's live processes (pid -> start time) and whether
+    ``end`` came, read until ``end`` or the end of ``lines``. Lines that are not orders (one cut
+    short by the launcher's death) are skipped."""
+    before: Optional[set] = None
     procs: Dict[int, str] = {}
     for line in lines:
         try:
@@ -126,7 +127,7 @@ def read_orders(lines: Iterable[str]) -> Tuple[set, Dict[int, str], bool]:
         if order.get('end') is True:
             return before, procs, True
         if isinstance(order.get('before'), list):
-            before |= {n for n in order['before'] if isinstance(n, str)}
+            before = (before or set()) | {n for n in order['before'] if isinstance(n, str)}
         pid = order.get('pid')
         if isinstance(pid, int) and pid > 0:
             started = _start_time(pid)
@@ -182,7 +183,9 @@ def main(argv=None) -> int:
             pass
 
     before, procs, ended = read_orders(iter(sys.stdin.readline, ''))
-    if not ended:
+    # Without the snapshot every FastDDS file would look new, other runs' too; the launcher died
+    # before it had started anything.
+    if not ended and before is not None:
         signal.alarm(int(args.wait) + 30)  # whatever hangs now, the sweeper ends (SIGALRM's default)
         sweep_after(before, procs, args.wait, say)
     return 0
