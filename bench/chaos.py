@@ -10,7 +10,8 @@ the launcher itself) at a random wall moment of the run (seeded), and then check
 (:func:`check_round`):
 
 * the launcher's report names what died and how (its pid, the signal or the exit status);
-* every process of the run has ended within its timeout;
+* every process of the run has ended within its timeout, the launcher's sweeper too (after a
+  launcher's SIGKILL it sweeps once the others have ended: leftovers are counted after it);
 * the exit status is the documented one (``swarm``: 0 done, 1 failed, 3 done but an agent died,
   130 interrupted; -9 for a launcher killed by SIGKILL, which reports nothing);
 * no FastDDS shared-memory file of the run is left: none of the segments and ports its processes
