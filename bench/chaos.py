@@ -10,7 +10,8 @@ the launcher itself) at a random wall moment of the run (seeded), and then check
 (:func:`check_round`):
 
 * the launcher's report names what died and how (its pid, the signal or the exit status);
-* every process of the run has ended within its timeout;
+* every process of the run has ended within its timeout, the launcher's sweeper too (after a
+  launcher's SIGKILL it sweeps once the others have ended: leftovers are counted after it);
 * the exit status is the documented one (``swarm``: 0 done, 1 failed, 3 done but an agent died,
   130 interrupted; -9 for a launcher killed by SIGKILL, which reports nothing);
 * no FastDDS shared-memory file of the run is left: none of the segments and ports its processes
@@ -105,6 +106,14 @@ def _pids(log_dir: Path) -> Dict[str, int]:
         return {}
 
 
+def _sweeper_pid(log_dir: Path) -> Optional[int]:
+    """The launcher's sweeper (``swarm/sweeper.py``), which outlives a killed launcher."""
+    try:
+        return int((log_dir / 'sweeper.pid').read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -125,9 +134,12 @@ def run_round(
     work: Path,
     domain: Optional[int] = None,
     when_running: bool = False,
+    also: Optional[str] = None,
 ) -> Round:
     """Start ``swarm``, signal one ``target`` process ``moment`` wall seconds after the launcher
-    started (once the run is running with ``when_running``), wait for the end, check it."""
+    started (once the run is running with ``when_running``), wait for the end, check it. ``also``:
+    a process of the run killed by SIGKILL right after the target (a stop cut short, as under
+    load), which leaves its FastDDS files for the launcher (or its sweeper) to remove."""
     work.mkdir(parents=True, exist_ok=True)
     record, log_dir = work / 'run.npz', work / 'logs'
     record.write_bytes(SENTINEL)
@@ -171,21 +183,25 @@ def run_round(
             r.phase = 'ended'
         else:
             os.kill(victim, sig)
+            if also and pids.get(also) and _alive(pids[also]):
+                os.kill(pids[also], signal.SIGKILL)
         try:
             r.rc = launcher.wait(timeout=END_S)
         except subprocess.TimeoutExpired:
             r.problems.append(f'the launcher still ran {END_S:g} s after the kill')
         pids = pids or _pids(log_dir)
+        sweeper = _sweeper_pid(log_dir)
+        waited = {**pids, **({'sweeper': sweeper} if sweeper else {})}  # it sweeps after them
         deadline = time.monotonic() + (END_S if r.rc == -signal.SIGKILL else 5.0)
-        while time.monotonic() < deadline and any(_alive(p) for p in pids.values()):
+        while time.monotonic() < deadline and any(_alive(p) for p in waited.values()):
             for pid in pids.values():
                 held |= shm_held_by(pid)
             time.sleep(0.1)  # a killed launcher's children stop on their own (PR_SET_PDEATHSIG)
-        left = [f'{n} ({p})' for n, p in pids.items() if _alive(p)]
+        left = [f'{n} ({p})' for n, p in waited.items() if _alive(p)]
         if left:
             r.problems.append(f'processes still running: {left}')
     finally:
-        for pid in [launcher.pid, *_pids(log_dir).values()]:
+        for pid in [launcher.pid, *_pids(log_dir).values(), *filter(None, [_sweeper_pid(log_dir)])]:
             if _alive(pid):
                 try:
                     os.kill(pid, signal.SIGKILL)

@@ -304,6 +304,33 @@ def test_an_npy_header_claiming_a_huge_array_is_refused_without_allocating_it():
             load_trajectories(path)
 
 
+# .npy headers on which numpy's parser fails with something else than a ValueError: Python's
+# tokenizer fails on one (a NUL byte, an unclosed bracket), sorting the keys on the other.
+UNTOKENIZABLE_NPY = (
+    b"\x93NUMPY\x01\x00v\x00{'descr': '<f8', 'fortran_order': False, 'shape': \x00), }" + b' ' * 62
+)
+UNTOKENIZABLE_NPY += b'\n' + bytes(8)
+BYTES_KEY_NPY = b"\x93NUMPY\x01\x00v\x00{'descr': '<f8', 'fortran_order': False,B'shape': (), }" + b' ' * 62
+BYTES_KEY_NPY += b'\n' + bytes(8)
+
+
+@pytest.mark.parametrize('member', ['states', 'dt'])
+@pytest.mark.parametrize('header', [UNTOKENIZABLE_NPY, BYTES_KEY_NPY], ids=['untokenizable', 'bytes-key'])
+def test_an_npy_header_numpy_cannot_parse_is_refused(member, header):
+    with _tmpdir() as tmp:
+        path = Path(tmp) / 'traj.npz'
+        fields = dict(states=np.zeros((1, 1, 1, 4)), dt=np.float64(0.05), scenario=np.str_('flock2d'))
+        np.savez(path, meta=np.str_('{}'), **fields)
+        with zipfile.ZipFile(path) as src:
+            members = {n: src.read(n) for n in src.namelist()}
+        members[f'{member}.npy'] = header  # once a tokenize.TokenError, a TypeError
+        with zipfile.ZipFile(path, 'w') as dst:
+            for name, data in members.items():
+                dst.writestr(name, data)
+        with pytest.raises(TrajectoryError, match='not a readable .npz trajectory file'):
+            load_trajectories(path)
+
+
 # --- policy files: knode.json, TorchScript, ONNX twins ---------------------------------------------
 
 
@@ -672,6 +699,235 @@ def test_bags_with_reordered_stamps_or_wrong_types_import_or_are_refused(stamps,
     with _tmpdir() as tmp:
         bag = _write_bag(Path(tmp) / 'bag', storage, stamps, values, type_name)
         _import(bag, Path(tmp) / 'out.npz')
+
+
+# --- track files (training.import_tracks): CSV and .npy -------------------------------------------
+
+TRACK_COLUMNS = [
+    't',
+    'id',
+    'x',
+    'y',
+    'z',
+    'vx',
+    'vy',
+    'vz',
+    'hx',
+    'hy',
+    'hz',
+    'frame',
+    ' T ',
+    'ID',
+    'x',
+    '',
+    'é',
+]
+# What a cell of a damaged CSV holds: a plausible number or something else.
+hostile_cells = st.one_of(
+    st.sampled_from(['nan', 'inf', '-inf', 'NaN', '1e308', '1e400', '-1e30', '1e30', '4.6e9', '9.3e9', '']),
+    st.sampled_from(
+        ['9223372036854775807', '9223372036854775808', '9007199254740993', '1_000', '３', '0x10']
+    ),
+    st.sampled_from(['abc', '1,5', '"', '"1"', '\x00', '\ufeff1', ' 2 ', '1e-320']),
+    st.text(max_size=8),
+    st.integers().map(str),
+    floats.map(repr),
+)
+
+
+@st.composite
+def track_csv(draw):
+    """A CSV track file: plausible (the columns a scenario reads, robots sampled at jittered,
+    possibly duplicated and shuffled times), then damaged: cells replaced, rows cut or lengthened,
+    a header made up or dropped; or arbitrary text. With the scenario it is imported for."""
+    scenario = draw(st.sampled_from(SCENARIOS))
+    if draw(st.integers(0, 9)) == 0:
+        return draw(st.text(max_size=300)), scenario
+    dims = (
+        {'flock2d': 2, 'boids3d': 3}[scenario] if draw(st.integers(0, 4)) else draw(st.sampled_from([2, 3]))
+    )
+    header = ['t', 'id', *'xyz'[:dims]]
+    header += draw(st.sampled_from([[], ['v' + a for a in 'xyz'[:dims]], ['h' + a for a in 'xyz'[:dims]]]))
+    if draw(st.integers(0, 3)) == 0:
+        header = draw(st.lists(st.sampled_from(TRACK_COLUMNS) | st.text(max_size=5), max_size=8))
+    robots = draw(st.integers(1, 4))
+    frames = draw(st.integers(0, 40))
+    step = draw(st.sampled_from([0.01, 0.05, 0.1, 0.1, 1.0, 1e-9, 1e6]))
+    rows = []
+    for k in range(frames):
+        for r in range(robots):
+            t = k * step + draw(st.sampled_from([0.0, 0.0, 0.0, step / 3, -step / 3]))
+            row = [repr(t), str(r)] + [repr(draw(st.floats(-50, 50))) for _ in header[2:]]
+            rows.append(row[: len(header)] + [''] * (len(header) - len(row)))
+    if rows and draw(st.booleans()):
+        rows += draw(st.lists(st.sampled_from(rows), max_size=5))  # duplicate (t, id) rows
+        rows = draw(st.permutations(rows))
+    for _ in range(draw(st.sampled_from([0, 0, 0, 1, 2, 4]))):
+        if not rows:
+            break
+        row = list(draw(st.sampled_from(rows)))
+        how = draw(st.integers(0, 3))
+        if how == 0 and row:
+            row[draw(st.integers(0, len(row) - 1))] = draw(hostile_cells)
+        elif how == 1:
+            row = row[: draw(st.integers(0, len(row)))]
+        elif how == 2:
+            row.append(draw(hostile_cells))
+        rows.append(row)
+    lines = [','.join(header)] if draw(st.integers(0, 9)) else []
+    lines += [','.join(row) for row in rows]
+    text = '\n'.join(lines) + draw(st.sampled_from(['', '\n', '\r\n']))
+    return draw(st.sampled_from(['', '', '\ufeff'])) + text, scenario
+
+
+@st.composite
+def hostile_npy(draw):
+    """An .npy file's bytes: an array of any dtype and shape (positions [T, n, dim] most often,
+    with NaN/inf/huge values), a header declaring another shape, dtype or order than its data
+    (terabytes among them), a cut file, an .npz archive, a pickle, or arbitrary bytes. With the
+    scenario it is imported for."""
+    scenario = draw(st.sampled_from(SCENARIOS))
+    return draw(_npy_payload({'flock2d': 2, 'boids3d': 3}[scenario])), scenario
+
+
+@st.composite
+def _npy_payload(draw, dims):
+    kind = draw(st.integers(0, 9))
+    if kind == 0:
+        return draw(st.sampled_from([b'', b'\x93NUMPY', b'PK\x03\x04'])) + draw(st.binary(max_size=300))
+    if kind == 1:  # a header of its own, followed by some data
+        descr = draw(
+            st.sampled_from(['<f8', '>f4', '<i2', '|u1', '|b1', '<c16', '|O', '<U3', '|V8', 'float64'])
+        )
+        shape = draw(
+            st.tuples()
+            | st.lists(st.integers(0, 10**6) | st.sampled_from([10**12, 2**62, 0, 1]), max_size=4).map(tuple)
+        )
+        head = {'descr': descr, 'fortran_order': draw(st.booleans()), 'shape': shape}
+        text = (
+            repr(head) if draw(st.integers(0, 4)) else draw(hostile_text | st.sampled_from(["{'descr': 1}"]))
+        )
+        header = text.encode('latin1', 'replace')
+        header += b' ' * (-(len(header) + 11) % 64) + b'\n'
+        version = draw(st.sampled_from([b'\x01\x00', b'\x02\x00', b'\x03\x00', b'\x09\x09']))
+        length = struct.pack('<H' if version == b'\x01\x00' else '<I', len(header) % 65536)
+        return b'\x93NUMPY' + version + length + header + draw(st.binary(max_size=200))
+    if kind == 2:
+        return _npy_bytes(np.zeros((3, 2, 2)), npz=True)
+    buf = io.BytesIO()
+    if kind == 3:
+        np.save(buf, np.array([{'trajectories': 1}, None], dtype=object), allow_pickle=True)
+        return buf.getvalue()
+    if draw(st.integers(0, 3)) == 0:
+        arr = draw(hnp.arrays(dtypes, small_shapes))
+    else:  # positions [T, n, dims] (mostly), a few of them NaN, inf or huge, of some numeric dtype
+        dim = dims if draw(st.integers(0, 4)) else draw(st.sampled_from([1, 2, 3, 4]))
+        shape = st.tuples(st.integers(0, 40), st.integers(0, 4), st.just(dim))
+        arr = draw(hnp.arrays(np.float64, shape, elements=st.floats(-100, 100)))
+        for _ in range(draw(st.sampled_from([0, 0, 0, 1, 3]))):
+            if arr.size:
+                arr.flat[draw(st.integers(0, arr.size - 1))] = draw(st.sampled_from([np.nan, np.inf, 1e300]))
+        cast = [np.float64, np.float64, np.float32, np.float16, np.int64, np.uint8, np.dtype('>f8')]
+        with np.errstate(all='ignore'):  # any data: a cast's garbage too
+            arr = arr.astype(draw(st.sampled_from(cast)))
+    np.save(buf, arr, allow_pickle=False)
+    data = buf.getvalue()
+    if draw(st.integers(0, 4)) == 0:  # cut, or a byte overwritten
+        at = draw(st.integers(0, len(data)))
+        data = (
+            data[:at]
+            if draw(st.booleans())
+            else data[:at] + bytes([draw(st.integers(0, 255))]) + data[at + 1 :]
+        )
+    return data
+
+
+def _npy_bytes(arr, npz=False, shape=None):
+    """``arr`` saved as .npy (or .npz) bytes; with ``shape``, a float64 header declaring it and
+    64 bytes of data."""
+    buf = io.BytesIO()
+    if shape is not None:
+        np.lib.format.write_array_header_1_0(buf, {'descr': '<f8', 'fortran_order': False, 'shape': shape})
+        return buf.getvalue() + bytes(64)
+    (np.savez if npz else np.save)(buf, arr)
+    return buf.getvalue()
+
+
+fps_values = st.sampled_from(
+    ['30'] * 4
+    + ['10', '1', '0.5', '1e-300', '5e-324', '1e300', '1e-9', '0', '-30', 'nan', 'inf', '-inf', 'x', None]
+)
+# Resample options with which short files make trajectories (the default keeps segments of 1 s).
+track_options = st.sampled_from(
+    [
+        [],
+        ['--min-duration', '0'],
+        ['--min-duration', '0', '--smooth', 'none'],
+        ['--min-duration', '0.1', '--max-gap', '0.3'],
+        ['--min-duration', '0', '--length', '3', '--test-trajectories', '1'],
+    ]
+)
+
+
+def _import_tracks(name, data, scenario, fps=None, options=()):
+    """``training.import_tracks`` on one file: exit 2 with a message naming the file (or the bad
+    option) and nothing written (the output and its temporary file absent), or 0 with a trajectory
+    file that loads."""
+    from training.import_tracks import main
+
+    with _tmpdir() as tmp:
+        path = Path(tmp) / name
+        path.write_bytes(data)
+        out = Path(tmp) / 'out.npz'
+        argv = [str(path), '--scenario', scenario, '--out', str(out), *options]
+        argv += [f'--fps={fps}'] if fps else []
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                rc = main(argv)
+            except SystemExit as exc:  # argparse: a bad option
+                rc = exc.code
+        assert rc in (0, 2), (rc, err.getvalue())
+        assert 'Traceback' not in err.getvalue()
+        if rc == 2:
+            assert sorted(os.listdir(tmp)) == [name], 'a refused track file left an output'
+            assert f'error: {path}' in err.getvalue() or 'error: argument --fps' in err.getvalue(), (
+                err.getvalue()
+            )
+        else:
+            assert sorted(os.listdir(tmp)) == sorted([name, 'out.npz'])
+            traj = _check_trajectory(out)
+            assert traj is not None and traj.scenario == scenario
+
+
+@budget(100)
+@given(track_csv(), st.sampled_from([None] * 7 + ['30']), track_options)
+@example(('t,id,x,y\n0,1e30,0,0\n0.1,1e30,1,1\n', 'flock2d'), None, [])  # once an OverflowError (int64 ids)
+@example(('t,id,x,y\n0,0,0,0\n1e6,0,1,1\n2e6,0,2,2\n', 'flock2d'), None, [])  # 2e8 frames: once out of memory
+@example(
+    ('t,id,x,y\n0.0,0,0.0,0.0\n0.01,0,0.0,0.0', 'flock2d'), None, []
+)  # the smoother on 2 samples: once a LinAlgError
+def test_csv_track_files_import_or_are_refused_without_writing(csv_file, fps, options):
+    text, scenario = csv_file
+    _import_tracks('tracks.csv', text.encode('utf-8', 'surrogatepass'), scenario, fps, options)
+
+
+@budget(30)
+@given(st.binary(max_size=600), st.sampled_from(['tracks.csv', 'tracks.txt', 'tracks.dat']))
+def test_arbitrary_bytes_as_a_track_file_import_or_are_refused(data, name):
+    _import_tracks(name, data, 'flock2d')
+
+
+@budget(100)
+@given(hostile_npy(), fps_values, track_options)
+@example((b'', 'flock2d'), '30', [])  # once an EOFError
+@example((_npy_bytes(np.zeros((3, 2, 2)), npz=True), 'flock2d'), '30', [])  # once an AttributeError
+@example((_npy_bytes(None, shape=(10**6, 10**6, 2)), 'flock2d'), '30', [])  # 14.6 TiB: once a MemoryError
+@example((UNTOKENIZABLE_NPY, 'flock2d'), '30', [])  # once a tokenize.TokenError from numpy
+@example((BYTES_KEY_NPY, 'flock2d'), '30', [])  # once a TypeError from numpy
+def test_npy_track_files_import_or_are_refused_without_writing(npy_file, fps, options):
+    data, scenario = npy_file
+    _import_tracks('tracks.npy', data, scenario, fps, options)
 
 
 # --- training configs and --set values ----------------------------------------------------------------

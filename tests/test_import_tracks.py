@@ -200,6 +200,86 @@ def test_single_frames_are_initial_conditions(tmp_path, capsys):
     assert not (tmp_path / 'x.npz').exists()
 
 
+def test_ids_beyond_a_float_s_precision_stay_apart_and_a_byte_order_mark_is_read(tmp_path, capsys, walkers):
+    # Through a float, 2**53 and 2**53 + 1 were one robot (a duplicate stamp, one dropped).
+    path = tmp_path / 'big.csv'
+    path.write_text('\ufefft,id,x,y\n0,9007199254740993,1,2\n0,9007199254740992,3,4\n')
+    rc, out, err = run(capsys, path, '--scenario', walkers, '--out', tmp_path / 'b.npz')
+    assert rc == 0, err
+    f = load_trajectories(tmp_path / 'b.npz')
+    assert f.meta['robot_ids'] == [9007199254740992, 9007199254740993]
+    np.testing.assert_array_equal(f.states, [[[[3.0, 4.0], [1.0, 2.0]]]])
+
+
+@pytest.mark.parametrize(
+    'cell,message',
+    [
+        ('id=1e30', "line 3: id = '1e30' is not an integer"),
+        ('id=9223372036854775808', "line 3: id = '9223372036854775808' is not an integer"),
+        ('t=1e300', "line 3: t = '1e300' is not a time in seconds within +-4.6e+09"),
+        ('t=-5e9', "line 3: t = '-5e9' is not a time"),
+        ('t=nan', "line 3: t = 'nan' is not a time"),
+    ],
+)
+def test_ids_and_times_beyond_int64_are_refused(tmp_path, capsys, walkers, cell, message):
+    column, value = cell.split('=')
+    row = {'t': '0.1', 'id': '1', 'x': '0', 'y': '0', column: value}
+    path = tmp_path / 'bad.csv'
+    path.write_text('t,id,x,y\n0,1,0,0\n' + ','.join(row[c] for c in ('t', 'id', 'x', 'y')) + '\n')
+    rc, out, err = run(capsys, path, '--scenario', walkers, '--out', tmp_path / 'x.npz')
+    assert rc == 2 and f'bad.csv: {message}' in err and not (tmp_path / 'x.npz').exists()
+
+
+def test_times_far_sparser_than_the_output_step_are_refused_not_resampled(tmp_path, capsys, walkers):
+    # 10 Hz stamps in nanoseconds read as seconds: 1e8 frames of dt 0.1 s between two samples.
+    path = tmp_path / 'ns.csv'
+    t = np.arange(12) * 1e8
+    write_csv(path, t, line(np.arange(12) * 0.1))
+    rc, out, err = run(capsys, path, '--scenario', walkers, '--out', tmp_path / 'x.npz')
+    assert rc == 2 and not (tmp_path / 'x.npz').exists()
+    assert 'no segment is long enough to keep' in err
+    assert '11000000001 frames from 12 samples of a robot: more than 1000 frames of 0.1 s a sample' in err
+    # The same samples 1 s apart make 111 frames: resampled.
+    write_csv(path, np.arange(12.0), line(np.arange(12) * 0.1))
+    rc, out, err = run(capsys, path, '--scenario', walkers, '--out', tmp_path / 'x.npz')
+    assert rc == 0, err
+    assert load_trajectories(tmp_path / 'x.npz').states.shape == (1, 111, 3, 2)
+
+
+def test_npy_files_that_are_not_a_positions_array_are_refused_before_reading_them(tmp_path, capsys, walkers):
+    header = tmp_path / 'huge.npy'  # 14.6 TiB declared in 10 header bytes: never allocated
+    with open(header, 'wb') as fh:
+        np.lib.format.write_array_header_1_0(
+            fh, {'descr': '<f8', 'fortran_order': False, 'shape': (10**6, 10**6, 2)}
+        )
+        fh.write(bytes(64))
+    np.savez(tmp_path / 'archive.npz', trajectories=np.zeros((3, 2, 2)))
+    (tmp_path / 'archive.npz').rename(tmp_path / 'archive.npy')
+    (tmp_path / 'empty.npy').write_bytes(b'')
+    np.save(tmp_path / 'none.npy', np.zeros((5, 0, 2)))
+    np.save(tmp_path / 'ok.npy', np.zeros((5, 2, 2)))
+    cases = [
+        (
+            'huge.npy',
+            30,
+            'huge.npy: its header declares float64 [1000000, 1000000, 2] (16000000000000 bytes)',
+        ),
+        ('archive.npy', 30, 'archive.npy: not a plain numeric .npy array'),
+        ('empty.npy', 30, 'empty.npy: not a plain numeric .npy array'),
+        (
+            'none.npy',
+            30,
+            'none.npy: expected positions [T, n, 2] (a 2D scenario, n >= 1 robots), got float64 [5, 0, 2]',
+        ),
+        ('ok.npy', 1e-300, 'ok.npy: 5 frames at --fps 1e-300 last beyond the 4.6e+09 s'),
+    ]
+    for name, fps, message in cases:
+        rc, out, err = run(
+            capsys, tmp_path / name, '--fps', fps, '--scenario', walkers, '--out', tmp_path / 'x.npz'
+        )
+        assert rc == 2 and message in err and not (tmp_path / 'x.npz').exists(), (name, err)
+
+
 def flock_lines(t):
     """flock2d states [len(t), 3, 4] on the lines above."""
     return np.concatenate([line(t), np.broadcast_to(SPEED, (t.size, 3, 2))], axis=2)

@@ -130,7 +130,8 @@ def _pids(tmp_path):
 
 def _assert_no_strays(tmp_path):
     alive = []
-    for name, pid in _pids(tmp_path).items():
+    sweeper = int((tmp_path / 'logs' / 'sweeper.pid').read_text())  # ends with the launcher
+    for name, pid in {**_pids(tmp_path), 'sweeper': sweeper}.items():
         try:
             os.kill(pid, 0)
             alive.append(f'{name} ({pid})')

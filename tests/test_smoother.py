@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from knode_swarm_ros.core import load_trajectories
-from training.data.smoother import estimate_noise, smooth_tracks
+from training.data.smoother import _RATIOS, estimate_noise, smooth, smooth_tracks
 from training.import_bag import main as import_bag_main
 from training.studies.noise_study import MocapNoise, truth_at, write_mocap_bag
 
@@ -45,6 +45,20 @@ def test_a_constant_acceleration_track_is_recovered_at_any_time():
     p, v = fits[0].at(grid[5:-5])
     assert np.sqrt(np.mean((v - truth(grid[5:-5])[1]) ** 2)) < 0.01
     assert np.sqrt(np.mean((p - truth(grid[5:-5])[0]) ** 2)) < 0.001  # below the 2 mm noise
+
+
+@pytest.mark.parametrize('samples', [2, 3])
+def test_two_or_three_samples_give_their_straight_line_at_every_process_noise(samples):
+    # Once a Cholesky failure ("6-th leading minor not positive definite") at ratios 1e-10, 1e-9,
+    # 1e-6 and 1e-5, the 1e-9 being what the likelihood search returns without a 4-sample track.
+    t = np.array([0.0, 0.5, 1.0])[:samples]
+    y = np.array([[0.0, 0.0], [1.0, 2.0], [2.0, 4.0]])[:samples]
+    for ratio in _RATIOS:
+        track = smooth(t, y, ratio)
+        np.testing.assert_allclose(track.p, y, atol=1e-6, err_msg=f'ratio {ratio:g}')
+        np.testing.assert_allclose(
+            track.v, np.broadcast_to([2.0, 4.0], y.shape), atol=1e-5, err_msg=f'ratio {ratio:g}'
+        )
 
 
 @pytest.mark.parametrize('sigma', [0.0005, 0.001, 0.002, 0.005])

@@ -11,6 +11,7 @@ import json
 import math
 import os
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -29,9 +30,14 @@ __all__ = [
     'save_trajectories',
     'parse_trajectory_ref',
     'atomic_write',
+    'npy_header',
 ]
 
 PathLike = Union[str, os.PathLike]
+#: What numpy's .npy header parser raises besides ValueError: a header it cannot tokenize (a NUL
+#: byte and an unclosed bracket) fails in Python's own parser; one with a bytes key (b'shape')
+#: fails sorting the keys.
+NPY_HEADER_ERRORS = (SyntaxError, tokenize.TokenError, TypeError)
 
 
 class TrajectoryError(KnodeError, ValueError):
@@ -96,21 +102,33 @@ def _scalar(where: str, name: str, value: np.ndarray, what: str, kinds: str):
     return str(value) if kinds == 'U' else float(value)
 
 
+def npy_header(fh) -> Tuple[tuple, np.dtype, Optional[int]]:
+    """Shape, dtype and bytes of data that the .npy header at ``fh`` declares (``fh`` is left at
+    the data; bytes None for an object dtype, which ``allow_pickle=False`` refuses). A reader
+    compares the bytes with what the file holds before numpy allocates the declared array (a few
+    header bytes could claim terabytes).
+
+    Raises:
+        ValueError: not an .npy magic string or header (numpy's message).
+    """
+    fmt = np.lib.format
+    version = fmt.read_magic(fh)
+    read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+    try:
+        shape, _, dtype = read_header(fh)
+    except NPY_HEADER_ERRORS as exc:
+        raise ValueError(f'cannot parse the .npy header: {exc}') from None
+    return shape, dtype, None if dtype.hasobject else math.prod(shape) * dtype.itemsize
+
+
 def _check_declared_size(where: str, data, name: str) -> None:
-    """Refuse a member whose .npy header declares more bytes than the member holds, before numpy
-    allocates the declared array (a few header bytes could otherwise claim terabytes)."""
+    """Refuse a member whose .npy header declares more bytes than the member holds."""
     member = f'{name}.npy'
     if member not in data.zip.namelist():
         return  # numpy reports it
     with data.zip.open(member) as fh:
-        fmt = np.lib.format
-        version = fmt.read_magic(fh)
-        read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-        shape, _, dtype = read_header(fh)
-        if dtype.hasobject:
-            return  # refused by allow_pickle=False
-        declared = math.prod(shape) * dtype.itemsize
-        if declared > data.zip.getinfo(member).file_size - fh.tell():
+        shape, dtype, declared = npy_header(fh)
+        if declared is not None and declared > data.zip.getinfo(member).file_size - fh.tell():
             raise TrajectoryError(
                 f'{where}: field {name!r} declares shape {shape} of {dtype} ({declared} bytes), '
                 'more than the file holds'
@@ -200,7 +218,15 @@ def load_trajectories(path: PathLike, scenario=None) -> TrajectoryFile:
             meta_text = _scalar(where, 'meta', data['meta'], 'a JSON string', 'U')
     except TrajectoryError:
         raise
-    except (OSError, ValueError, TypeError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
+    except (
+        OSError,
+        ValueError,
+        TypeError,
+        zipfile.BadZipFile,
+        EOFError,
+        zlib.error,
+        *NPY_HEADER_ERRORS,
+    ) as exc:
         raise TrajectoryError(f'{where}: not a readable .npz trajectory file ({exc})') from None
     try:
         meta = json.loads(meta_text) if meta_text else {}

@@ -216,8 +216,21 @@ def choose_process_noise(tracks: Sequence[Tuple[np.ndarray, np.ndarray]], sigma:
 
 def smooth(t: np.ndarray, y: np.ndarray, ratio: float) -> SmoothedTrack:
     """The smoothed track of samples ``y[m, c]`` at stamps ``t[m]`` (m >= 2)."""
+    if t.size <= 3:
+        return _through(t, y)
     z, _, _, h0, _ = _solve(t, y, ratio)
     return SmoothedTrack(t, z[0::3], z[1::3] / h0, z[2::3] / (h0 * h0))
+
+
+def _through(t: np.ndarray, y: np.ndarray) -> SmoothedTrack:
+    """Two or three samples: the smoother's answer is the line or parabola through them (no jerk,
+    no residual), here in closed form: at small ratios its normal equations are too ill-conditioned
+    to solve (a Cholesky failure)."""
+    s = t - t[0]
+    coef = np.linalg.solve(np.vander(s, t.size, increasing=True), y)  # [m, c], increasing powers
+    v = sum(k * coef[k] * s[:, None] ** (k - 1) for k in range(1, t.size))
+    a = sum(k * (k - 1) * coef[k] * s[:, None] ** (k - 2) for k in range(2, t.size)) + np.zeros_like(y)
+    return SmoothedTrack(t, y.astype(np.float64), v + np.zeros_like(y), a)
 
 
 def smooth_tracks(

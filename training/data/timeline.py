@@ -18,6 +18,10 @@ Interval = Tuple[float, float]
 #: Positions farther from the origin than this (m) are refused: a million kilometres, far beyond
 #: any map or UTM coordinate (northings are below 1e7 m).
 POSITION_LIMIT_M = 1e9
+#: Output frames a segment may have per sample of its sparsest robot: beyond, the grid is not a
+#: resampling of the data but a fabrication (and its size unbounded by the file's: times in
+#: nanoseconds read as seconds asked for 1e8 frames a sample).
+FRAMES_PER_SAMPLE_LIMIT = 1000
 
 
 @dataclass
@@ -30,6 +34,7 @@ class Timeline:
     gap_rule: str
     gaps: List[Dict[str, Any]]  # every silent stretch of every robot
     common: List[Interval]  # maximal stretches where all robots are observed
+    samples: List[int]  # per stretch of ``common``: the fewest samples a robot has in it
 
     @property
     def anchor(self) -> float:
@@ -104,7 +109,11 @@ def timeline(robots: List[Track], max_gap: Optional[float], where) -> Timeline:
             f'{where}: the robots are never all observed at the same time '
             f'({"; ".join(f"{r.label}: {r.t[0]:.3f}..{r.t[-1]:.3f} s" for r in robots)})'
         )
-    return Timeline(t0_ns, medians, max_gap, gap_rule, gaps, common)
+    samples = [
+        min(int(np.searchsorted(r.t, b, 'right') - np.searchsorted(r.t, a, 'left')) for r in robots)
+        for a, b in common
+    ]
+    return Timeline(t0_ns, medians, max_gap, gap_rule, gaps, common, samples)
 
 
 def segments(
@@ -119,7 +128,7 @@ def segments(
     anchor, rate = tl.anchor, 1.0 / dt
     metas: List[Dict[str, Any]] = []
     kept = []
-    for a, b in tl.common:
+    for (a, b), samples in zip(tl.common, tl.samples):
         ka = int(np.ceil((a - anchor) * rate - 1e-9))
         kb = int(np.floor((b - anchor) * rate + 1e-9))
         L = kb - ka + 1
@@ -143,6 +152,12 @@ def segments(
             continue
         if opts.length is not None and L < opts.length:
             seg['reason'] = f'{L} frames < --length {opts.length}'
+            continue
+        if L > FRAMES_PER_SAMPLE_LIMIT * samples:
+            seg['reason'] = (
+                f'{L} frames from {samples} samples of a robot: more than {FRAMES_PER_SAMPLE_LIMIT} '
+                f'frames of {dt:g} s a sample (times in ms or ns instead of seconds? a --rate too high?)'
+            )
             continue
         states, reason = derive(
             anchor + (ka + np.arange(L)) * dt, f'segment {len(metas) - 1} [{a:.3f}, {b:.3f}] s'

@@ -11,18 +11,25 @@ objects (docs/scenarios.md, "Data in").
 from __future__ import annotations
 
 import csv
+import math
+import os
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
 from knode_swarm_ros.core.scenarios import Scenario
+from knode_swarm_ros.core.trajectory import npy_header
 
 from .tracks import Track, TrackError
 
 __all__ = ['read_track_file', 'single_frame']
 
 _AXES = ('x', 'y', 'z')
+#: Seconds either side of 0 that a time may have (146 years): its stamp in int64 nanoseconds,
+#: and the difference of two stamps, fit (2**63 ns is 9.2e9 s).
+TIME_LIMIT_S = 4.6e9
+_ID_LIMIT = 2**63  # ids are int64
 
 
 def _columns(header: List[str], spec: Scenario, where: str) -> Dict[str, Optional[List[str]]]:
@@ -53,7 +60,7 @@ def _columns(header: List[str], spec: Scenario, where: str) -> Dict[str, Optiona
 def _read_csv(path: Path, spec: Scenario) -> Tuple[List[Track], Dict[str, Any]]:
     where = str(path)
     try:
-        with open(path, newline='', encoding='utf-8') as fh:
+        with open(path, newline='', encoding='utf-8-sig') as fh:  # a spreadsheet's byte-order mark
             rows = list(csv.reader(fh))
     except UnicodeDecodeError as exc:
         raise TrackError(f'{where}: not a text CSV file ({exc})') from None
@@ -70,21 +77,24 @@ def _read_csv(path: Path, spec: Scenario) -> Tuple[List[Track], Dict[str, Any]]:
         line = k + 2
         if len(row) != len(header):
             raise TrackError(f'{where}: line {line} has {len(row)} fields, the header {len(header)}')
+        rid = _integer(row[id_col])
+        if rid is None:
+            raise TrackError(
+                f'{where}: line {line}: id = {row[id_col]!r} is not an integer (of at most 18 digits)'
+            )
         try:
             data[k] = [float(row[i]) for i in index]
-            rid = float(row[id_col])
         except ValueError:
-            if not _is_float(row[id_col]):
-                raise TrackError(f'{where}: line {line}: id = {row[id_col]!r} is not an integer') from None
             bad = next(c for c, i in zip(wanted, index) if not _is_float(row[i]))
             raise TrackError(
                 f'{where}: line {line}: {bad} = {row[header.index(bad)]!r} is not a number'
             ) from None
-        if not (np.isfinite(rid) and rid == int(rid)):
-            raise TrackError(f'{where}: line {line}: id = {row[id_col]!r} is not an integer')
-        if not np.isfinite(data[k, 0]):
-            raise TrackError(f'{where}: line {line}: t = {row[index[0]]!r} is not a finite time')
-        ids[k] = int(rid)
+        if not abs(data[k, 0]) <= TIME_LIMIT_S:  # NaN too
+            raise TrackError(
+                f'{where}: line {line}: t = {row[index[0]]!r} is not a time in seconds within '
+                f'+-{TIME_LIMIT_S:.3g} (a stamp in nanoseconds)'
+            )
+        ids[k] = rid
     if ids.size == 0:
         raise TrackError(f'{where}: a header but no rows')
     p = spec.dimensions
@@ -114,6 +124,22 @@ def _read_csv(path: Path, spec: Scenario) -> Tuple[List[Track], Dict[str, Any]]:
     return tracks, info
 
 
+def _integer(text: str) -> Optional[int]:
+    """``text`` as an int64 id (``7``, ``7.0``, ``7e2``), else None. Parsed as an integer first:
+    through a float, ids beyond 2**53 would merge."""
+    try:
+        value = int(text)
+    except ValueError:
+        try:
+            f = float(text)
+        except ValueError:
+            return None
+        if not (math.isfinite(f) and f == int(f) and abs(f) <= 2**53):
+            return None
+        value = int(f)
+    return value if -_ID_LIMIT <= value < _ID_LIMIT else None
+
+
 def _is_float(text: str) -> bool:
     try:
         float(text)
@@ -126,17 +152,18 @@ def _read_npy(path: Path, spec: Scenario, fps: Optional[float]) -> Tuple[List[Tr
     where = str(path)
     if fps is None:
         raise TrackError(f'{where}: a .npy array has no time stamps; give its frame rate with --fps')
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except ValueError as exc:
+    if not (math.isfinite(fps) and fps > 0):
+        raise TrackError(f'{where}: --fps must be a positive number, got {fps}')
+    arr = _load_npy(path, where)
+    if arr.ndim != 3 or arr.shape[2] != spec.dimensions or arr.dtype.kind not in 'fiu' or arr.shape[1] == 0:
         raise TrackError(
-            f"{where}: not a plain numeric array ({exc}); from a tracker's dict (idtracker.ai "
-            f"trajectories.npy) save its 'trajectories' array with numpy.save"
-        ) from None
-    if arr.ndim != 3 or arr.shape[2] != spec.dimensions or arr.dtype.kind not in 'fiu':
+            f'{where}: expected positions [T, n, {spec.dimensions}] (a {spec.dimensions}D scenario, '
+            f'n >= 1 robots), got {arr.dtype} {list(arr.shape)}'
+        )
+    if not max(arr.shape[0] - 1, 0) / fps <= TIME_LIMIT_S:
         raise TrackError(
-            f'{where}: expected positions [T, n, {spec.dimensions}] (a {spec.dimensions}D scenario), '
-            f'got {arr.dtype} {list(arr.shape)}'
+            f'{where}: {arr.shape[0]} frames at --fps {fps:g} last beyond the {TIME_LIMIT_S:.3g} s '
+            f'that nanosecond stamps hold'
         )
     ns = np.round(np.arange(arr.shape[0]) / fps * 1e9).astype(np.int64)
     tracks = [
@@ -148,6 +175,29 @@ def _read_npy(path: Path, spec: Scenario, fps: Optional[float]) -> Tuple[List[Tr
         'fps': fps,
         'columns': ['x', 'y', 'z'][: spec.dimensions],
     }
+
+
+def _load_npy(path: Path, where: str) -> np.ndarray:
+    """The plain numeric array of an .npy file; its header is checked against the file's size
+    first (a header can declare terabytes)."""
+    hint = (
+        "; from a tracker's dict (idtracker.ai trajectories.npy) save its 'trajectories' array with "
+        'numpy.save'
+    )
+    try:
+        with open(path, 'rb') as fh:
+            shape, dtype, declared = npy_header(fh)
+            if declared is not None and declared > os.fstat(fh.fileno()).st_size - fh.tell():
+                raise TrackError(
+                    f'{where}: its header declares {dtype} {list(shape)} ({declared} bytes), more '
+                    'than the file holds'
+                )
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, EOFError) as exc:  # (TrackError is a ValueError)
+        if isinstance(exc, TrackError):
+            raise
+        raise TrackError(f'{where}: not a plain numeric .npy array ({exc}){hint}') from None
+    return arr
 
 
 def _track(rid, name, ns, pos, vel, heading) -> Track:

@@ -19,7 +19,8 @@ The launcher's modules (none imports rclpy or a message package):
 :class:`Plan` (the arguments are not changed); - :mod:`.commands`: a plan as command lines and
 parameter files (:func:`build_commands` is pure); - :mod:`.processes`: one child process, its log,
 stopping them; :mod:`.supervise`: the run (staged start, the watcher, the stop); - :mod:`.shm`:
-FastDDS shared-memory cleanup; :mod:`.report`: the summary and the figure; - :mod:`.hosting`:
+FastDDS shared-memory cleanup; :mod:`.sweeper`: the process that cleans up after a killed
+launcher; :mod:`.report`: the summary and the figure; - :mod:`.hosting`:
 agents spread over processes and network namespaces.
 """
 

@@ -11,7 +11,7 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from ..common.startup import block_stop_signals
 
@@ -123,13 +123,16 @@ def start_child(name: str, cmd: Sequence[str], env: Dict[str, str], run_dir: Pat
 class Children:
     """The node processes, their output pumped into logs (and echoed) with one selector."""
 
-    def __init__(self):
+    def __init__(self, on_add: Optional[Callable[[int], None]] = None):
         self.items: Dict[str, Child] = {}
+        self.on_add = on_add  # told each new process's pid (the sweeper)
         self.selector = selectors.DefaultSelector()
         self.interrupted = False  # set by the launcher's signal handler; pump() raises Interrupted
 
     def add(self, child: Child) -> None:
         self.items[child.name] = child
+        if self.on_add is not None:
+            self.on_add(child.pid)
         self.selector.register(child.proc.stdout, selectors.EVENT_READ, child)
 
     def pump(self, timeout: float) -> None:

@@ -21,6 +21,7 @@ from .plan import Plan, scenario_name
 from .processes import Children, Interrupted, start_child
 from .report import name_never_heard, summarise
 from .shm import shm_cleanup, shm_snapshot
+from .sweeper import Sweeper
 
 __all__ = ['run', 'MONITOR']
 
@@ -34,8 +35,12 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
     env = child_environment(plan.domain_id)
     commands, env = hosting.place(node_commands(plan), env, plan.netns)
     shm_before = shm_snapshot()
+    # Started before any node: it sweeps in our place if we are killed (SIGKILL) before our end.
+    sweeper = Sweeper.start(shm_before)
+    if sweeper is not None:
+        (plan.run_dir / 'sweeper.pid').write_text(f'{sweeper.pid}\n')
     record_before = _file_identity(plan.record)
-    children = Children()
+    children = Children(on_add=sweeper.add if sweeper is not None else None)
     stop_reason = {'signal': None}
 
     def on_signal(signum, _frame):
@@ -113,6 +118,8 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
         removed = shm_cleanup(shm_before)
         if removed:
             _say(f'removed {len(removed)} FastDDS shared-memory file(s) left by killed processes')
+        if sweeper is not None:
+            sweeper.end()
     _say(f'every process has stopped ({time.monotonic() - t0:.1f} s in all)')
     name_never_heard(plan)
     if code in (EXIT_OK, EXIT_AGENT_LOST, EXIT_INTERRUPTED):
