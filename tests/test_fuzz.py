@@ -665,6 +665,19 @@ def _import(bag, out):
         st.tuples(st.just('magic'), st.binary(max_size=600)),
     ),
 )
+@example(
+    '.mcap',
+    (
+        'flip',
+        [
+            (0.6411184879684554, 0),
+            (0.30579966380833473, 0),
+            (0.008268541941080622, 0),
+            (0.10583507450575483, 0),
+        ]
+        + [(0.008730982732846561, 0), (0.9806070630133557, 68)],
+    ),
+)  # a damaged definition of Odometry in the bag: once an AttributeError
 def test_a_damaged_bag_imports_or_is_refused_without_writing(good_bags, suffix, damage):
     data = bytearray(good_bags[suffix])
     how, arg = damage

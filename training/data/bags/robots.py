@@ -120,7 +120,16 @@ def read_robots(bag, opts: ImportOptions, notes: List[str]) -> Tuple[List[Robot]
     for path, topic, type_name, log_ns, msg in bag.messages(matched):
         if type_name not in SUPPORTED_TYPES:
             raise BagError(f'{path}: topic {topic} carries {type_name}, which is not supported')
-        for child, sample in samples_of(type_name, msg, log_ns):
+        try:
+            samples = samples_of(type_name, msg, log_ns)
+        except (AttributeError, TypeError, ValueError) as exc:
+            # the bag carries its own definition of each type: a damaged or foreign one decodes to
+            # a message without the fields of the standard type
+            raise BagError(
+                f'{path}: a message on {topic} lacks the fields of {type_name} ({exc}); the bag '
+                f'defines {type_name} otherwise than ROS 2 does'
+            ) from None
+        for child, sample in samples:
             name = child if tf else topic
             if not wanted(name):
                 ignored[name] = ignored.get(name, 0) + 1
