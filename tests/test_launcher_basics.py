@@ -197,3 +197,48 @@ def test_a_signal_during_the_checks_is_not_lost_when_an_import_swallows_it(monke
         for s, h in handlers.items():
             signal.signal(s, h)
     assert exc.value.code == 130 and seen['pending'] == [signal.SIGINT]
+
+
+@pytest.mark.parametrize('when', ['after the last check', 'while stopping', 'while summarising'])
+def test_a_stop_signal_as_the_run_ends_is_reported_and_exits_130(
+    tmp_path, untrained_policies, monkeypatch, capsys, when
+):
+    """A SIGINT that lands as the run ends (after the supervisor's last look, while the processes
+    are stopped, or while the run is summarised) still ends the launcher as a stopped run does:
+    the report names it and the status is 130, not 0."""
+    from knode_swarm_ros.nodes.swarm import cli, supervise
+
+    args = [
+        '--robots',
+        '2',
+        '--policy',
+        str(untrained_policies['flock2d']),
+        '--record',
+        str(tmp_path / 'r.npz'),
+    ]
+    plan = swarm.plan_run(swarm.build_parser().parse_args(args + ['--log-dir', str(tmp_path / 'logs')]))
+    stop = lambda *a, **k: os.kill(os.getpid(), signal.SIGINT)  # noqa: E731  (its handler runs at once)
+
+    # a simulator and a recorder that only wait (children start with stop signals blocked)
+    wait = 'import signal, time; signal.pthread_sigmask(signal.SIG_UNBLOCK, {2, 15}); time.sleep(60)'
+
+    def start_stand_ins(plan, commands, env, children, t0):
+        for name in ('simulator', 'recorder'):
+            children.add(supervise.start_child(name, [sys.executable, '-c', wait], env, plan.run_dir, 'none'))
+
+    monkeypatch.setattr(supervise, '_start_in_stages', start_stand_ins)
+    monkeypatch.setattr(supervise, '_supervise', lambda *a: (when == 'after the last check' and stop()) or 0)
+    if when == 'while stopping':
+        monkeypatch.setattr(supervise.Children, 'stop', lambda self: stop() or [])
+    if when == 'while summarising':
+        monkeypatch.setattr(supervise, 'name_never_heard', lambda plan: stop() or [])
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        pending = cli.note_stop_signals()  # the launcher's own handler, as main installs it
+        code = supervise.run(plan, pending)
+    finally:
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    out = capsys.readouterr().out
+    assert code == 130 and 'SIGINT: stopping every process' in out, out
+    assert 'every process has stopped' in out

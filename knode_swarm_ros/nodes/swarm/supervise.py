@@ -53,6 +53,8 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     for signum in list(pending)[:1]:  # (read after ours are installed: none is lost in between)
         on_signal(signum, None)
+    noted_before = len(pending)  # the launcher's own handler notes signals after ours are gone
+    late = False
     code = EXIT_OK
     lost_agents: List[str] = []
     t0 = time.monotonic()
@@ -102,15 +104,23 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
             name = signal.Signals(stop_reason['signal']).name
             _say(f'{name}: stopping every process (the recorder saves what it has)')
             code = EXIT_INTERRUPTED
-        # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save. A
+        # signal from here on is only noted: the stop goes on, and the exit status says it came.
+        late = code != EXIT_INTERRUPTED and stop_reason['signal'] is not None  # after the last pump
+
+        def on_late_signal(signum, _frame):
+            stop_reason['signal'] = stop_reason['signal'] or signum
+
+        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(signum, on_late_signal)
         children.interrupted = False
         for note in children.stop():
             _say(note)
     finally:
+        if code != EXIT_INTERRUPTED and stop_reason['signal'] is not None:
+            late = True
         for s, handler in old.items():
-            signal.signal(s, handler)
+            signal.signal(s, handler)  # the launcher's: noted in ``pending``
         for c in children.alive():  # never leave a process behind
             c.proc.kill()
             c.proc.wait()
@@ -136,6 +146,11 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
         code = EXIT_AGENT_LOST
     if lost_agents:
         _say(f'agent process(es) died during the run: {"; ".join(lost_agents)}')
+    if late or len(pending) > noted_before:
+        # a stop signal as the run was ending: it ends as every stopped run does
+        signum = stop_reason['signal'] or pending[-1]
+        _say(f'{signal.Signals(signum).name}: stopping every process (it came as the run was ending)')
+        code = EXIT_INTERRUPTED
     return code
 
 
