@@ -9,6 +9,9 @@ The ``continuous`` variants keep the paper's idea and its 1 / d^3 growth at cont
 continuously at d0: U(d) = (lambda / 2) (1/d - 1/d0)^2, force lambda (1/d - 1/d0) / d^2 along
 r / d, summed over every heard neighbour within d0 (a sum of pair potentials, so nothing jumps
 when neighbours change rank).
+With an acceleration command the wall terms take the distance left after braking at the command
+limit (:func:`stopping_reach`): a double integrator cannot stop at once, and a push that only
+grows with the distance lets a fast robot through the wall before it outweighs the learnt part.
 Gains are lambda = a + phi^2 with a >= 0 fixed and phi trainable (the paper uses a > 0
 in 2D and a = 0 in 3D), which keeps every gain non-negative whatever phi learns.
 
@@ -26,6 +29,7 @@ __all__ = [
     'AvoidanceGain',
     'collision_avoidance',
     'wall_avoidance',
+    'stopping_reach',
     'collision_potential',
     'wall_potential',
     'continuous_collision_avoidance',
@@ -80,13 +84,38 @@ def _unit(r: Tensor, dist: Tensor) -> Tensor:
     return torch.where(apart, r / torch.where(apart, dist, torch.ones_like(dist)), axis)
 
 
+def stopping_reach(velocity: Tensor, limit: float):
+    """How far a robot moving at ``velocity [B, p]`` still travels towards the +box and the -box
+    faces while braking at ``limit`` per axis: v^2 / (2 limit) for the axes it moves along, 0 else."""
+    up = velocity.clamp(min=0.0)
+    down = (-velocity).clamp(min=0.0)
+    return up * up / (2.0 * limit), down * down / (2.0 * limit)
+
+
 def _wall_pushes(
-    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float, continuous: bool
+    position: Tensor,
+    box: float,
+    gain: Tensor,
+    d0: float,
+    min_distance: float,
+    continuous: bool,
+    velocity: Optional[Tensor] = None,
+    limit: float = 0.0,
 ) -> Tensor:
     """Both wall terms ``[B, p]``: per face within d0, lambda / d^3 (paper) or
-    lambda (1/d - 1/d0) / d^2 (continuous) along the inward normal, distances floored."""
-    up = (box - position).clamp(min=min_distance)  # distance to the +box faces
-    down = (position + box).clamp(min=min_distance)  # distance to the -box faces
+    lambda (1/d - 1/d0) / d^2 (continuous) along the inward normal, distances floored.
+
+    With ``velocity`` (an acceleration command saturated at ``limit``) d is the distance left
+    after braking at the limit: the push grows without bound before a robot can no longer stop
+    at the wall, so it outweighs any learnt push while braking can still keep the robot in."""
+    up = box - position  # distance to the +box faces
+    down = position + box  # distance to the -box faces
+    if velocity is not None:
+        reach_up, reach_down = stopping_reach(velocity, limit)
+        up = up - reach_up
+        down = down - reach_down
+    up = up.clamp(min=min_distance)
+    down = down.clamp(min=min_distance)
     zero = torch.zeros_like(position)
     if continuous:
         return torch.where(up < d0, -gain * (1.0 / up - 1.0 / d0) / up**2, zero) + torch.where(
@@ -124,7 +153,13 @@ def collision_avoidance(
 
 
 def wall_avoidance(
-    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3
+    position: Tensor,
+    box: float,
+    gain: Tensor,
+    d0: float,
+    min_distance: float = 1e-3,
+    velocity: Optional[Tensor] = None,
+    limit: float = 0.0,
 ) -> Tensor:
     """Repulsion from the closest point of each face of the cube [-box, box]^p.
 
@@ -133,9 +168,10 @@ def wall_avoidance(
 
     Returns:
         ``[B, p]``: for each face within d0, lambda / d^3 along the inward normal. A robot
-        already outside the box is pushed back in with the floored distance.
+        already outside the box is pushed back in with the floored distance. With ``velocity``
+        and ``limit`` (acceleration commands) d is the distance left after braking at the limit.
     """
-    return _wall_pushes(position, box, gain, d0, min_distance, False)
+    return _wall_pushes(position, box, gain, d0, min_distance, False, velocity, limit)
 
 
 def continuous_collision_avoidance(
@@ -158,11 +194,18 @@ def continuous_collision_avoidance(
 
 
 def continuous_wall_avoidance(
-    position: Tensor, box: float, gain: Tensor, d0: float, min_distance: float = 1e-3
+    position: Tensor,
+    box: float,
+    gain: Tensor,
+    d0: float,
+    min_distance: float = 1e-3,
+    velocity: Optional[Tensor] = None,
+    limit: float = 0.0,
 ) -> Tensor:
     """Per face within d0, lambda (1/d - 1/d0) / d^2 along the inward normal ``[B, p]``
-    (floored distance outside the box, as :func:`wall_avoidance`)."""
-    return _wall_pushes(position, box, gain, d0, min_distance, True)
+    (floored distance outside the box, and the distance left after braking with ``velocity``,
+    as :func:`wall_avoidance`)."""
+    return _wall_pushes(position, box, gain, d0, min_distance, True, velocity, limit)
 
 
 def _pair_potential(

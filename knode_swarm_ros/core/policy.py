@@ -146,6 +146,8 @@ class KNODEPolicy(nn.Module):
         self.collision_d0 = float(config.collision_d0)
         self.use_wall = bool(config.wall) and spec.box is not None
         self.wall_d0 = float(config.wall_d0)
+        # a double integrator cannot stop at once: its walls act on the distance left after braking
+        self.wall_brake = spec.command == 'acceleration' and spec.velocity is not None
         self.continuous = config.potential == 'continuous'
         self.box = float(spec.box) if spec.box is not None else 0.0
         # unit scales leave the features untouched (the shipped policies' numbers, bit for bit)
@@ -199,10 +201,17 @@ class KNODEPolicy(nn.Module):
                 )
         if self.use_wall:
             own = Y[:, 0, : self.position_dim]
+            velocity: Optional[Tensor] = None
+            if self.wall_brake:
+                velocity = Y[:, 0, self.position_dim : 2 * self.position_dim]
             if self.continuous:
-                out = out + continuous_wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
+                out = out + continuous_wall_avoidance(
+                    own, self.box, self.wall_gain(), self.wall_d0, 1e-3, velocity, self.command_limit
+                )
             else:
-                out = out + wall_avoidance(own, self.box, self.wall_gain(), self.wall_d0)
+                out = out + wall_avoidance(
+                    own, self.box, self.wall_gain(), self.wall_d0, 1e-3, velocity, self.command_limit
+                )
         return out
 
     def network(self, Y: Tensor, mask: Tensor) -> Tensor:
