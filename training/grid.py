@@ -173,6 +173,19 @@ def _cell_values(cell: Dict[str, Any], name: str) -> Optional[np.ndarray]:
     return np.asarray(cell[name], dtype=np.float64) if name in cell else None
 
 
+def _table_lines(title: str, d_crs: List[float], ks: List[int], text) -> List[str]:
+    """A markdown table of a grid, one row per d_cr and one column per k, under ``title``;
+    ``text(i, j)`` is cell (d_crs[i], ks[j])'s text."""
+    lines = [title, '', '| d_cr \\ k | ' + ' | '.join(map(str, ks)) + ' |', '| --- ' * (len(ks) + 1) + '|']
+    for i, d in enumerate(d_crs):
+        lines.append(f'| {d:g} | ' + ' | '.join(text(i, j) for j in range(len(ks))) + ' |')
+    return lines + ['']
+
+
+def _truth_lines(truth: Optional[Dict[str, float]]) -> List[str]:
+    return ['Ground truth: ' + ', '.join(f'{k} {v:.3g}' for k, v in truth.items())] if truth else []
+
+
 def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[str, Any]:
     cells = {}
     for d in d_crs:
@@ -222,23 +235,18 @@ def collect(out: str, scenario: str, d_crs: List[float], ks: List[int]) -> Dict[
     lines = [f'# Grid search: {scenario}', '', f'{len(cells)} of {len(d_crs) * len(ks)} cells finished.', '']
     for key, grid in tables.items():
         name = key.rsplit('_', 1)[0]
-        lines += [
-            f'## {key}' + (' [quartiles over rollouts]' if key.endswith('median') else ''),
-            '',
-            '| d_cr \\ k | ' + ' | '.join(map(str, ks)) + ' |',
-            '| --- ' * (len(ks) + 1) + '|',
-        ]
-        for i, (d, row) in enumerate(zip(d_crs, grid)):
-            cells_txt = []
-            for j, v in enumerate(row):
-                txt = '-' if not np.isfinite(v) else f'{v:.3g}'
-                if key.endswith('median') and np.isfinite(v):
-                    txt += f' [{spread[name][i][j][0]:.3g}, {spread[name][i][j][1]:.3g}]'
-                cells_txt.append(txt)
-            lines.append(f'| {d:g} | ' + ' | '.join(cells_txt) + ' |')
-        lines.append('')
-    if results['truth']:
-        lines.append('Ground truth: ' + ', '.join(f'{k} {v:.3g}' for k, v in results['truth'].items()))
+
+        def text(i: int, j: int) -> str:
+            v = grid[i][j]
+            if not np.isfinite(v):
+                return '-'
+            if key.endswith('median'):
+                return f'{v:.3g} [{spread[name][i][j][0]:.3g}, {spread[name][i][j][1]:.3g}]'
+            return f'{v:.3g}'
+
+        title = f'## {key}' + (' [quartiles over rollouts]' if key.endswith('median') else '')
+        lines += _table_lines(title, d_crs, ks, text)
+    lines += _truth_lines(results['truth'])
     open(os.path.join(out, 'summary.md'), 'w').write('\n'.join(lines) + '\n')
     return results
 
@@ -283,25 +291,16 @@ def collect_seeds(out: str, seeds: List[int], per_seed: List[Dict[str, Any]]) ->
         '',
     ]
     for key, table in tables.items():
-        lines += [
-            f'## {key}',
-            '',
-            '| d_cr \\ k | ' + ' | '.join(map(str, ks)) + ' |',
-            '| --- ' * (len(ks) + 1) + '|',
-        ]
-        for i, d in enumerate(d_crs):
-            row = []
-            for j in range(len(ks)):
-                mean, half, sd, count = (table[f][i][j] for f in ('mean', 'ci95', 'sd', 'seeds'))
-                if not count:
-                    row.append('-')
-                    continue
-                txt = f'{mean:.3g}' if count == 1 else f'{mean:.3g} ± {half:.2g} (sd {sd:.2g})'
-                row.append(txt + ('' if count == len(seeds) else f' [{count} seeds]'))
-            lines.append(f'| {d:g} | ' + ' | '.join(row) + ' |')
-        lines.append('')
-    if results['truth']:
-        lines.append('Ground truth: ' + ', '.join(f'{k} {v:.3g}' for k, v in results['truth'].items()))
+
+        def text(i: int, j: int) -> str:
+            mean, half, sd, count = (table[f][i][j] for f in ('mean', 'ci95', 'sd', 'seeds'))
+            if not count:
+                return '-'
+            txt = f'{mean:.3g}' if count == 1 else f'{mean:.3g} ± {half:.2g} (sd {sd:.2g})'
+            return txt + ('' if count == len(seeds) else f' [{count} seeds]')
+
+        lines += _table_lines(f'## {key}', d_crs, ks, text)
+    lines += _truth_lines(results['truth'])
     open(os.path.join(out, 'summary.md'), 'w').write('\n'.join(lines) + '\n')
     return results
 

@@ -206,11 +206,11 @@ class KNODEPolicy(nn.Module):
                 velocity = Y[:, 0, self.position_dim : 2 * self.position_dim]
             if self.continuous:
                 out = out + continuous_wall_avoidance(
-                    own, self.box, self.wall_gain(), self.wall_d0, 1e-3, velocity, self.command_limit
+                    own, self.box, self.wall_gain(), self.wall_d0, velocity=velocity, limit=self.command_limit
                 )
             else:
                 out = out + wall_avoidance(
-                    own, self.box, self.wall_gain(), self.wall_d0, 1e-3, velocity, self.command_limit
+                    own, self.box, self.wall_gain(), self.wall_d0, velocity=velocity, limit=self.command_limit
                 )
         return out
 

@@ -54,7 +54,6 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
     for signum in list(pending)[:1]:  # (read after ours are installed: none is lost in between)
         on_signal(signum, None)
     noted_before = len(pending)  # the launcher's own handler notes signals after ours are gone
-    late = False
     code = EXIT_OK
     lost_agents: List[str] = []
     t0 = time.monotonic()
@@ -104,10 +103,9 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
             name = signal.Signals(stop_reason['signal']).name
             _say(f'{name}: stopping every process (the recorder saves what it has)')
             code = EXIT_INTERRUPTED
+
         # Stop whatever still runs; the recorder first waits for nothing: SIGTERM makes it save. A
         # signal from here on is only noted: the stop goes on, and the exit status says it came.
-        late = code != EXIT_INTERRUPTED and stop_reason['signal'] is not None  # after the last pump
-
         def on_late_signal(signum, _frame):
             stop_reason['signal'] = stop_reason['signal'] or signum
 
@@ -117,8 +115,6 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
         for note in children.stop():
             _say(note)
     finally:
-        if code != EXIT_INTERRUPTED and stop_reason['signal'] is not None:
-            late = True
         for s, handler in old.items():
             signal.signal(s, handler)  # the launcher's: noted in ``pending``
         for c in children.alive():  # never leave a process behind
@@ -146,8 +142,9 @@ def run(plan: Plan, pending: Sequence[int] = ()) -> int:
         code = EXIT_AGENT_LOST
     if lost_agents:
         _say(f'agent process(es) died during the run: {"; ".join(lost_agents)}')
-    if late or len(pending) > noted_before:
-        # a stop signal as the run was ending: it ends as every stopped run does
+    if code != EXIT_INTERRUPTED and (stop_reason['signal'] is not None or len(pending) > noted_before):
+        # a stop signal after the supervisor's last look (or ours were gone): it ends as every
+        # stopped run does
         signum = stop_reason['signal'] or pending[-1]
         _say(f'{signal.Signals(signum).name}: stopping every process (it came as the run was ending)')
         code = EXIT_INTERRUPTED
