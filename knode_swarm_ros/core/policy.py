@@ -9,6 +9,11 @@
   ``encoder='flat'`` (default): an MLP over the k rows flattened. ``encoder='set'`` is a
   permutation-invariant neighbour encoder (:mod:`.set_encoder`) whose weights do not depend on
   k, so a policy learnt with a small k runs with a larger one.
+* ``symmetric=True`` averages ``u_theta`` over the half turns about the coordinate axes
+  (:func:`half_turns`): the network is then exactly equivariant under them. Training data
+  rotated at random teach a network the symmetry only approximately, and a constant left over
+  in a per-neighbour term grows with the neighbour count: a denser swarm than the data then
+  drifts as a whole. The average of a constant over the half turns is zero.
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
@@ -36,7 +41,19 @@ from .knowledge import (
 from .scenarios import get_scenario
 from .set_encoder import NeighbourSetEncoder
 
-__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS']
+__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'half_turns']
+
+
+def half_turns(position_dim: int) -> List[List[float]]:
+    """The identity and the rotations by 180 degrees about the coordinate axes, as the signs of
+    their diagonal matrices ``[G][position_dim]``: a group of rotations that maps the arena
+    ``[-w, w]^d`` onto itself and averages any constant vector to zero (2D: the half turn
+    about the origin; 3D: the three half turns about x, y and z)."""
+    if position_dim == 2:
+        return [[1.0, 1.0], [-1.0, -1.0]]
+    if position_dim == 3:
+        return [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]
+    raise ValueError(f'half_turns: position_dim must be 2 or 3, not {position_dim}')
 
 
 @dataclass
@@ -57,6 +74,7 @@ class PolicyConfig:
     hidden: int = 128
     frame: str = 'relative'
     encoder: str = 'flat'
+    symmetric: bool = False
     command_limit: float = 10.0
     collision: bool = True
     potential: str = 'paper'
@@ -81,6 +99,7 @@ class PolicyConfig:
             'frame': self.frame in ('relative', 'absolute'),
             # the set encoder is built on offsets to the robot: it has no absolute frame
             'encoder': self.encoder == 'flat' or (self.encoder == 'set' and self.frame == 'relative'),
+            'symmetric': isinstance(self.symmetric, bool),
             'potential': self.potential in ('paper', 'continuous'),
             'command_limit': self.command_limit > 0,
             'collision_d0': self.collision_d0 > 0,
@@ -165,6 +184,13 @@ class KNODEPolicy(nn.Module):
             self.net = nn.Sequential(
                 nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
             )
+        self.symmetric = bool(config.symmetric)
+        # the signs of each half turn on every command and state entry (positions, then velocities
+        # or headings), flattened row by row: ONNX export takes flat lists of constants only
+        turns = half_turns(spec.position_dim)
+        self.turn_count = len(turns)
+        self.command_signs: List[float] = [s for t in turns for s in t]
+        self.state_signs: List[float] = [s for t in turns for s in t * (spec.state_dim // spec.position_dim)]
         self.collision_gain = AvoidanceGain(config.collision_a, config.collision_phi)
         self.wall_gain = AvoidanceGain(config.wall_a, config.wall_phi)
 
@@ -214,11 +240,24 @@ class KNODEPolicy(nn.Module):
                 )
         return out
 
-    def network(self, Y: Tensor, mask: Tensor) -> Tensor:
-        """The learnt part ``u_theta [B, m]``."""
+    def raw_network(self, Y: Tensor, mask: Tensor) -> Tensor:
+        """The network alone ``[B, m]``, before any symmetrisation."""
         if hasattr(self, 'encoder'):  # resolved when scripted: one branch per policy
             return self.encoder(self.scale_inputs(Y), mask)
         return self.net(self.features(Y, mask))
+
+    def network(self, Y: Tensor, mask: Tensor) -> Tensor:
+        """The learnt part ``u_theta [B, m]``: with ``symmetric``, the mean over the half turns g
+        of ``g u(g Y)`` (one batch of G x B rows)."""
+        if not self.symmetric:
+            return self.raw_network(Y, mask)
+        B, k, d = Y.shape[0], Y.shape[1], Y.shape[2]
+        G = self.turn_count
+        state_signs = torch.tensor(self.state_signs, dtype=Y.dtype, device=Y.device).reshape(G, d)
+        command_signs = torch.tensor(self.command_signs, dtype=Y.dtype, device=Y.device).reshape(G, -1)
+        turned = (Y.unsqueeze(0) * state_signs[:, None, None, :]).reshape(G * B, k, d)
+        u = self.raw_network(turned, mask.repeat(G, 1)).reshape(G, B, -1)
+        return (u * command_signs[:, None, :]).mean(0)
 
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Command ``[B, m]`` for neighbour matrices ``Y [B, k, d]`` with ``mask [B, k]``."""

@@ -28,7 +28,10 @@ derived, in order (later rules use earlier values, derived or given):
 * ``policy.position_scale``: the RMS of the offsets to the neighbours within d_cr;
   ``policy.velocity_scale``: the RMS of the velocity entries (1 for headings or no velocity);
 * ``noise.variance``: (2 % of the smaller input scale)^2;
-* ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false.
+* ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
+* ``policy.symmetric``: the network averaged over the half turns about the axes: without an arena
+  as ``augment.rotate`` (a law with a preferred direction sets that false), with one true (the
+  half turns map the arena onto itself).
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ DERIVED_FIELDS = (
     'policy.velocity_scale',
     'noise.variance',
     'augment.rotate',
+    'policy.symmetric',
 )
 # A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
 DENSER = 4
@@ -264,6 +268,14 @@ def derive(
         if spec.arena is None
         else 'false: the arena breaks rotational symmetry',
     )
+    if spec.arena is None:
+        turn = bool(cfg['augment']['rotate'])
+        why = 'as augment.rotate: ' + (
+            'the law is taken to be rotation invariant' if turn else 'rotations are off'
+        )
+    else:
+        turn, why = True, 'true: the half turns about the axes map the arena onto itself'
+    put('policy.symmetric', turn, why + ' (the network is averaged over the half turns about the axes)')
     return cfg, record
 
 
