@@ -35,7 +35,8 @@ def lattice_tracks(frames=5):
 
 
 def test_derived_hyper_parameters_of_a_lattice_of_known_spacing():
-    pending = load_config(RECIPE)
+    # the flat encoder's range and k (the set encoder's: tests/test_policy_set_encoder.py)
+    pending = load_config(RECIPE, {'policy.encoder': 'flat'})
     assert isinstance(pending, PendingConfig)
     spec = scenario()
     cfg, derived = resolve_config(
@@ -125,7 +126,8 @@ def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     argv = ['--config', RECIPE, '--data', str(data), '--out', str(run), '--no-progress']
     assert train_main(argv + ['--set', 'training.epochs=1', '--set', 'policy.hidden=8']) == 0
     summary = json.loads((run / 'summary.json').read_text())
-    assert summary['derived']['policy.k']['how'].startswith('1 + the 90th percentile')
+    assert summary['derived']['policy.k']['how'].startswith('1 + the smaller of')  # the set encoder's k
+    assert summary['derived']['policy.symmetric']['value'] is True
     policy = load_policy(str(run / 'policy.pt'))
     assert policy.meta['provenance']['derived']['policy.d_cr']['value'] == policy.d_cr
     assert policy.meta['scenario']['name'] == 'tiny'

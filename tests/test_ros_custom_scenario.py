@@ -95,9 +95,14 @@ def _difference(record, policy_path, steps):
     return data, float(np.abs(ref - states).max())
 
 
-def test_first_order_2d_scenario_file_runs_in_lockstep_equal_to_the_offline_rollout(tmp_path):
+@pytest.mark.parametrize(
+    'network',
+    [{'k': 5}, {'k': 12, 'encoder': 'set', 'symmetric': True}],
+    ids=['flat', 'set-symmetric'],  # the paper's network; the custom recipe's
+)
+def test_first_order_2d_scenario_file_runs_in_lockstep_equal_to_the_offline_rollout(tmp_path, network):
     scenario = _scenario_file(tmp_path, GROUND)
-    policy = _policy(tmp_path, scenario, k=5, d_cr=2.0, tau=0, command_limit=1.5)
+    policy = _policy(tmp_path, scenario, d_cr=2.0, tau=0, command_limit=1.5, **network)
     record = tmp_path / 'ground.npz'
     steps = 200
     rc, out = _run(

@@ -7,7 +7,7 @@ your own").
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
     python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 0 2 10 \
         --rate 30 120 --train-seeds 0 1 --eval-robots 10
-    python -m training.studies.custom_laws --out runs/set --set policy.encoder=set --starts 32
+    python -m training.studies.custom_laws --out runs/flat --set policy.encoder=flat --starts 16
 
 With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
 positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
@@ -330,7 +330,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         help="one training per seed on each import (default the recipe's seed)",
     )
     parser.add_argument('--eval-robots', type=int, nargs='+', default=[10, 30], help='held-out swarm sizes')
-    parser.add_argument('--starts', type=int, default=8, help='held-out starts per swarm size')
+    parser.add_argument(
+        '--starts',
+        type=int,
+        default=32,
+        help='held-out starts per swarm size (32 resolve ~0.1 on a bistable law)',
+    )
     parser.add_argument(
         '--set', action='append', metavar='KEY=VALUE', help='a recipe field for training (repeatable)'
     )

@@ -1,0 +1,127 @@
+"""Benchmark of the policy network kinds: what the set encoder and the half-turn average cost.
+
+    python bench/bench_encoders.py [--repeats 200] [--k 37]
+
+For a custom 2D first-order and a 3D double-integrator scenario, each kind (flat, the paper's
+MLP over k rows, is the baseline; set; flat and set with ``symmetric``) is timed in the same run:
+
+* command: one TorchScript policy call for 1 robot (what an agent does each tick) and for 100,
+  median over ``--repeats`` calls, in microseconds;
+* training step: forward and backward of 2048 samples with 10 rows (the trainer builds only
+  as many rows as the training swarm has), median over ``--repeats // 10`` steps, in ms.
+
+Every figure is printed with its ratio to flat in the same scenario. One thread, as the agents
+and the recipe (``training.threads: 1``) run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import statistics
+import sys
+import time
+import warnings
+
+import torch
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..'))
+from bench_ros import machine
+
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig
+from knode_swarm_ros.core.scenarios import scenario_from_dict, scenario_ref
+
+KINDS = [('flat', False), ('set', False), ('flat', True), ('set', True)]
+
+
+def scenario(dimensions: int, state: str, command: str, arena) -> str:
+    spec = scenario_from_dict(
+        dict(
+            name=f'bench{dimensions}d',
+            dimensions=dimensions,
+            state=state,
+            command=command,
+            dt=0.05,
+            arena=arena,
+        )
+    )
+    return scenario_ref(spec)
+
+
+SCENARIOS = {
+    '2D position, velocity': scenario(2, 'position', 'velocity', None),
+    '3D position_velocity, acceleration, arena': scenario(
+        3, 'position_velocity', 'acceleration', {'half_width': 4.0}
+    ),
+}
+
+
+def median_seconds(fn, repeats: int) -> float:
+    fn()  # warm up (TorchScript's profiling runs)
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def scripted(policy: KNODEPolicy):
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        buffer = io.BytesIO()
+        torch.jit.save(torch.jit.script(policy.eval()), buffer)
+    buffer.seek(0)
+    return torch.jit.load(buffer)
+
+
+def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int):
+    torch.manual_seed(0)
+    policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric))
+    d = policy.state_dim
+    module = scripted(policy)
+    out = {}
+    with torch.no_grad():
+        for rows in (1, 100):
+            Y, mask = torch.randn(rows, k, d), torch.ones(rows, k)
+            out[f'command, {rows} robot(s) (us)'] = 1e6 * median_seconds(lambda: module(Y, mask), repeats)
+    # training: the trainer's k is the training swarm's size (10 rows), k = 10 for both encoders
+    train = KNODEPolicy(PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric)).train()
+    Y, mask = torch.randn(2048, 10, d), torch.ones(2048, 10)
+    target = torch.randn(2048, train.command_dim)
+
+    def step():
+        train.zero_grad()
+        loss = ((train(Y, mask) - target) ** 2).mean()
+        loss.backward()
+
+    out['training step, 2048 samples (ms)'] = 1e3 * median_seconds(step, max(5, repeats // 10))
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--repeats', type=int, default=200)
+    parser.add_argument(
+        '--k', type=int, default=37, help='rows of Y at run time (the set encoder derives ~37)'
+    )
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    print('$ python bench/bench_encoders.py ' + ' '.join(argv if argv is not None else sys.argv[1:]))
+    print(machine())
+    for name, ref in SCENARIOS.items():
+        print(f'\n{name} (k = {args.k} at run time, 10 in training)')
+        rows = {kind: measure(ref, *kind, args.k, args.repeats) for kind in KINDS}
+        base = rows[('flat', False)]
+        print('| network | ' + ' | '.join(base) + ' |')
+        print('|---' * (len(base) + 1) + '|')
+        for (encoder, symmetric), figures in rows.items():
+            label = encoder + (' + symmetric' if symmetric else '')
+            cells = [f'{v:.1f} ({v / base[key]:.2f}x)' for key, v in figures.items()]
+            print(f'| {label} | ' + ' | '.join(cells) + ' |')
+
+
+if __name__ == '__main__':
+    main()
