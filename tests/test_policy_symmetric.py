@@ -50,6 +50,7 @@ def batch(d, k=6, B=7, seed=0):
 def test_half_turns_are_rotations_that_average_a_constant_to_zero():
     for p in (2, 3):
         signs = np.array(half_turns(p))
+        assert np.all(signs[0] == 1.0)  # the identity first (the policy starts its sum with it)
         assert np.all(np.prod(signs, axis=1) == 1.0)  # determinant +1: rotations, no mirror
         assert np.all(signs.sum(axis=0) == 0.0)  # the mean of g c over the group is 0
         assert {tuple(a * b) for a in signs for b in signs} == {tuple(s) for s in signs}  # a group
