@@ -91,12 +91,18 @@ class Launcher:
         return '\n'.join(self.lines)
 
 
-async def _ticks(url: str, count: int):
-    """The hello message and ``count`` tick messages of the page's WebSocket."""
+async def _ticks(url: str, count: int, heard: int, most: int = 600):
+    """The hello message and at least ``count`` tick messages of the page's WebSocket, more until
+    they hold ``heard`` robots heard (a loaded machine starts the robots after the monitor's
+    first ticks), at most ``most``."""
     async with aiohttp.ClientSession() as session:
         async with session.ws_connect(url.replace('http', 'ws') + 'ws') as ws:
             hello = (await ws.receive(timeout=WAIT_S)).data
-            return hello, [(await ws.receive(timeout=WAIT_S)).data for _ in range(count)]
+            ticks, total = [], 0
+            while len(ticks) < count or (total < heard and len(ticks) < most):
+                ticks.append((await ws.receive(timeout=WAIT_S)).data)
+                total += sum(h != 'unheard' for h in decode_tick(ticks[-1], 2)['health'])
+            return hello, ticks
 
 
 @pytest.fixture
@@ -111,7 +117,7 @@ def test_page_in_chromium_shows_the_recorded_swarm(run_dir):
     browser = None
     try:
         url = swarm.wait_for(_URL.pattern).group(1)
-        hello_text, ticks = asyncio.run(_ticks(url, 5))
+        hello_text, ticks = asyncio.run(_ticks(url, 5, heard=10))
         browser = Chromium(url)
         browser.wait_until('window.monitor && monitor.received >= 3')
         shown = browser.evaluate('monitor.pause()')
