@@ -47,7 +47,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from knode_swarm_ros.core.trajectory import TrajectoryError, load_trajectories  # noqa: E402
-from knode_swarm_ros.nodes.swarm.shm import shm_held_by, shm_left_by, shm_snapshot  # noqa: E402
+from knode_swarm_ros.nodes.swarm.shm import shm_left_by, shm_lock_holders, shm_snapshot  # noqa: E402
 
 SENTINEL = b'chaos sentinel: the file that was here before the run\n'
 SIGNALS = (signal.SIGKILL, signal.SIGINT, signal.SIGTERM)
@@ -159,13 +159,13 @@ def run_round(
     t0 = time.monotonic()
     sim_log = log_dir / 'simulator.log'
     held: set = set()  # the FastDDS lock files the run's processes held (their segments, ports)
+    shared: set = set()  # those of them that a process outside the run held too (a port of all domains)
     try:
         pids: Dict[str, int] = {}
         while launcher.poll() is None and time.monotonic() - t0 < END_S:
             pids = pids or _pids(log_dir)
             if int((time.monotonic() - t0) * 20) % 10 == 0:  # every half second or so
-                for pid in pids.values():
-                    held |= shm_held_by(pid)
+                _sample_locks(set(pids.values()), held, shared)
             running = ': running' in _read(sim_log)
             due = time.monotonic() - t0 >= moment and (running or not when_running)
             if due and (target == 'launcher' or pids):
@@ -194,8 +194,7 @@ def run_round(
         waited = {**pids, **({'sweeper': sweeper} if sweeper else {})}  # it sweeps after them
         deadline = time.monotonic() + (END_S if r.rc == -signal.SIGKILL else 5.0)
         while time.monotonic() < deadline and any(_alive(p) for p in waited.values()):
-            for pid in pids.values():
-                held |= shm_held_by(pid)
+            _sample_locks(set(pids.values()), held, shared)
             time.sleep(0.1)  # a killed launcher's children stop on their own (PR_SET_PDEATHSIG)
         left = [f'{n} ({p})' for n, p in waited.items() if _alive(p)]
         if left:
@@ -208,8 +207,20 @@ def run_round(
                 except ProcessLookupError:
                     pass
         launcher.poll()
-    check_round(r, _read(out_path), record, log_dir, shm_before, held)
+    check_round(r, _read(out_path), record, log_dir, shm_before, held - shared)
     return r
+
+
+def _sample_locks(run: set, held: set, shared: set) -> None:
+    """Add the FastDDS lock files that the ``run``'s pids hold now to ``held``, and those that a
+    process outside the run holds too to ``shared``: the ports every domain opens (7000...) are
+    shared with a concurrent suite, whose killed process may be the last to hold one, so a file
+    left there is not the run's."""
+    for name, pids in shm_lock_holders().items():
+        if pids & run:
+            held.add(name)
+            if pids - run:
+                shared.add(name)
 
 
 def expected_status(r: Round) -> tuple:

@@ -15,7 +15,7 @@ import fcntl
 import os
 import re
 from pathlib import Path
-from typing import List, Optional
+from typing import Dict, List, Optional, Set, Tuple
 
 __all__ = [
     'SHM_DIR',
@@ -23,6 +23,7 @@ __all__ = [
     'shm_snapshot',
     'shm_cleanup',
     'shm_held_by',
+    'shm_lock_holders',
     'shm_left_by',
     'lock_held',
 ]
@@ -90,24 +91,21 @@ def shm_cleanup(before: set) -> List[str]:
     return removed
 
 
-def shm_held_by(pid: int) -> set:
-    """Names of the FastDDS lock files (``X_el``, ``X_sl``) that process ``pid`` holds a lock on
-    now, read from /proc/locks: those of its own segment and of the ports it listens on, which a
-    clean exit removes (with ``X`` and ``sem.X_mutex``). Files of other processes, a concurrent
-    test suite's included, are never among them."""
+def shm_lock_holders() -> Dict[str, Set[int]]:
+    """Each FastDDS lock file (``X_el``, ``X_sl``) in /dev/shm that some process holds a lock on
+    now, with the pids holding it, read from /proc/locks."""
     try:
         lines = Path('/proc/locks').read_text().splitlines()
     except OSError:
-        return set()
-    held = (
-        set()
-    )  # (major, minor, inode) as /proc/locks writes them: "1: FLOCK ADVISORY WRITE pid 00:1a:123 0 EOF"
+        return {}
+    # (major, minor, inode) as /proc/locks writes them: "1: FLOCK ADVISORY WRITE pid 00:1a:123 0 EOF"
+    holders: Dict[Tuple[int, int, int], Set[int]] = {}
     for line in lines:
         fields = line.replace('->', ' ').split()
-        if len(fields) >= 6 and fields[4] == str(pid) and fields[5].count(':') == 2:
+        if len(fields) >= 6 and fields[4].isdigit() and fields[5].count(':') == 2:
             major, minor, inode = fields[5].split(':')
-            held.add((int(major, 16), int(minor, 16), int(inode)))
-    names = set()
+            holders.setdefault((int(major, 16), int(minor, 16), int(inode)), set()).add(int(fields[4]))
+    out: Dict[str, Set[int]] = {}
     for name in shm_snapshot():
         if not name.endswith(('_el', '_sl')):
             continue
@@ -115,9 +113,18 @@ def shm_held_by(pid: int) -> set:
             st = (SHM_DIR / name).stat()
         except OSError:
             continue
-        if (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino) in held:
-            names.add(name)
-    return names
+        pids = holders.get((os.major(st.st_dev), os.minor(st.st_dev), st.st_ino))
+        if pids:
+            out[name] = pids
+    return out
+
+
+def shm_held_by(pid: int) -> set:
+    """Names of the FastDDS lock files (``X_el``, ``X_sl``) that process ``pid`` holds a lock on
+    now, read from /proc/locks: those of its own segment and of the ports it listens on, which a
+    clean exit removes (with ``X`` and ``sem.X_mutex``). Files of other processes, a concurrent
+    test suite's included, are never among them."""
+    return {name for name, pids in shm_lock_holders().items() if pid in pids}
 
 
 _PORT_RE = re.compile(r'^fastrtps_port(\d+)$')
