@@ -9,13 +9,13 @@ import warnings
 import numpy as np
 import pytest
 import torch
+from export_parity import assert_exports_equal
 
 from knode_swarm_ros.core import (
     DEFAULTS,
     KNODEPolicy,
     PolicyConfig,
     PolicyError,
-    export_policy,
     load_policy,
     neighbour_matrix,
 )
@@ -23,7 +23,6 @@ from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.scenarios import scenario_from_dict
 from training.learning.config import load_config, resolve_config
 from training.learning.derive import lattice_neighbours
-from training.learning.onnx_twin import export_onnx
 
 torch.set_num_threads(1)
 ARENA = scenario_from_dict(
@@ -112,20 +111,8 @@ def test_more_neighbours_push_harder_through_the_sum_channel():
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
 def test_torchscript_and_onnx_equal_the_eager_module(tmp_path, scenario, dims):
     policy = make(scenario, k=9, potential='continuous')
-    path = tmp_path / 'set.pt'
-    export_policy(policy, path, policy.metadata())
-    loaded = load_policy(path)
+    loaded = assert_exports_equal(policy, tmp_path / 'set.pt', *swarm_batch(dims, 9))
     assert loaded.meta['encoder'] == 'set' and loaded.meta['config']['encoder'] == 'set'
-    Y, mask = swarm_batch(dims, 9)
-    with torch.no_grad():
-        eager = policy(Y, mask)
-        assert torch.equal(loaded.module(Y, mask), eager)
-    twin_path, errors = export_onnx(path)  # checks the twin on the input table (1e-5)
-    assert max(errors.values()) <= 1e-5
-    from knode_swarm_ros.core import load_runtime
-
-    twin = load_runtime(path, runtime='onnxruntime')
-    np.testing.assert_allclose(twin(Y.numpy(), mask.numpy()), eager.numpy(), rtol=1e-5, atol=1e-5)
 
 
 def test_a_policy_file_without_the_field_loads_as_flat(tmp_path):

@@ -8,12 +8,12 @@ import os
 import numpy as np
 import pytest
 import torch
+from export_parity import assert_exports_equal
 
-from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, export_policy, load_policy, load_runtime
+from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig
 from knode_swarm_ros.core.policy import half_turns
 from knode_swarm_ros.core.scenarios import scenario_from_dict
 from training.learning.config import load_config, resolve_config
-from training.learning.onnx_twin import export_onnx
 
 torch.set_num_threads(1)
 
@@ -106,19 +106,9 @@ def test_a_neighbourhood_symmetric_under_a_half_turn_gets_no_command():
 @pytest.mark.parametrize('encoder', ['flat', 'set'])
 def test_torchscript_and_onnx_equal_the_eager_module(tmp_path, scenario, p, d, encoder):
     policy = make(scenario, encoder, k=6)
-    path = tmp_path / 'sym.pt'
-    export_policy(policy, path, policy.metadata())
-    loaded = load_policy(path)
+    loaded = assert_exports_equal(policy, tmp_path / 'sym.pt', *batch(d))
     assert loaded.meta['config']['symmetric'] is True
     assert PolicyConfig(**loaded.meta['config']).symmetric
-    Y, mask = batch(d)
-    with torch.no_grad():
-        eager = policy(Y, mask)
-        assert torch.equal(loaded.module(Y, mask), eager)
-    _, errors = export_onnx(path)  # checks the twin on the input table (1e-5)
-    assert max(errors.values()) <= 1e-5
-    twin = load_runtime(path, runtime='onnxruntime')
-    np.testing.assert_allclose(twin(Y.numpy(), mask.numpy()), eager.numpy(), rtol=1e-5, atol=1e-5)
 
 
 def test_a_policy_config_without_the_field_is_not_averaged():
