@@ -1,9 +1,11 @@
-"""Benchmark of the policy network kinds: what the set encoder and the half-turn average cost.
+"""Benchmark of the policy network kinds: what the set and equivariant encoders and the half-turn
+average cost.
 
     python bench/bench_encoders.py [--repeats 200] [--k 37]
 
 For a custom 2D first-order and a 3D double-integrator scenario, each kind (flat, the paper's
-MLP over k rows, is the baseline; set; flat and set with ``symmetric``) is timed in the same run:
+MLP over k rows, is the baseline; set; equivariant; each also with ``symmetric``, which the
+recipe derives for the equivariant encoder only with an arena) is timed in the same run:
 
 * command: one TorchScript policy call for 1 robot (what an agent does each tick) and for 100,
   median over ``--repeats`` calls, in microseconds;
@@ -32,7 +34,14 @@ from bench_ros import machine
 from knode_swarm_ros.core import KNODEPolicy, PolicyConfig
 from knode_swarm_ros.core.scenarios import scenario_from_dict, scenario_ref
 
-KINDS = [('flat', False), ('set', False), ('flat', True), ('set', True)]
+KINDS = [
+    ('flat', False),
+    ('set', False),
+    ('flat', True),
+    ('set', True),
+    ('equivariant', False),
+    ('equivariant', True),
+]
 
 
 def scenario(dimensions: int, state: str, command: str, arena) -> str:

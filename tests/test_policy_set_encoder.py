@@ -1,6 +1,7 @@
-"""The permutation-invariant neighbour encoder (``policy.encoder: set``): invariance to the order
-of the neighbour rows and to masked padding rows, TorchScript and ONNX parity with the eager
-module, metadata (old files are flat, a bad value is named) and the config field."""
+"""The permutation-invariant neighbour encoders (``policy.encoder: set`` and ``equivariant``):
+invariance to the order of the neighbour rows and to masked padding rows, TorchScript and ONNX
+parity with the eager module, metadata (old files are flat, a bad value is named) and the
+config field."""
 
 import json
 import os
@@ -37,6 +38,9 @@ ARENA = scenario_from_dict(
 )
 
 
+ROW_FREE = ['set', 'equivariant']
+
+
 def make(scenario, seed=0, **overrides):
     torch.manual_seed(seed)
     base = dict(DEFAULTS.get(scenario if isinstance(scenario, str) else '', {}))
@@ -62,8 +66,9 @@ IDS = ['flock2d', 'boids3d', 'arena3d', 'position2d']
 
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
 @pytest.mark.parametrize('potential', ['paper', 'continuous'])
-def test_shuffling_neighbour_rows_gives_the_same_command(scenario, dims, potential):
-    policy = make(scenario, k=8, potential=potential)
+@pytest.mark.parametrize('encoder', ROW_FREE)
+def test_shuffling_neighbour_rows_gives_the_same_command(scenario, dims, potential, encoder):
+    policy = make(scenario, k=8, potential=potential, encoder=encoder)
     Y, mask = swarm_batch(dims, 8)
     assert 0 < mask[:, 1:].sum() < mask[:, 1:].numel()  # some neighbours, some empty rows
     perm = torch.cat(
@@ -76,9 +81,10 @@ def test_shuffling_neighbour_rows_gives_the_same_command(scenario, dims, potenti
 
 
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
-def test_masked_padding_rows_change_nothing(scenario, dims):
+@pytest.mark.parametrize('encoder', ROW_FREE)
+def test_masked_padding_rows_change_nothing(scenario, dims, encoder):
     """A policy learnt with k = 6 runs unchanged with k = 20: the extra rows are masked."""
-    policy = make(scenario, k=6)
+    policy = make(scenario, k=6, encoder=encoder)
     Y, mask = swarm_batch(dims, 6, n=5)
     pad = 14
     Yp = torch.cat([Y, torch.zeros(Y.shape[0], pad, Y.shape[2])], dim=1)
@@ -99,9 +105,10 @@ def test_the_flat_encoder_is_not_permutation_invariant():
         assert not torch.allclose(policy(Y, mask), policy(Y[:, perm], mask[:, perm]), atol=1e-4)
 
 
-def test_more_neighbours_push_harder_through_the_sum_channel():
+@pytest.mark.parametrize('encoder', ROW_FREE)
+def test_more_neighbours_push_harder_through_the_sum_channel(encoder):
     """Weights do not depend on k, and a duplicated neighbour set changes the command (the sum)."""
-    policy = make('flock2d', k=8, collision=False)
+    policy = make('flock2d', k=8, collision=False, encoder=encoder)
     Y, mask = swarm_batch((2, 4), 4, n=4, d_cr=50.0)
     twice = torch.cat([Y, Y[:, 1:]], dim=1), torch.cat([mask, mask[:, 1:]], dim=1)
     with torch.no_grad():
@@ -109,10 +116,11 @@ def test_more_neighbours_push_harder_through_the_sum_channel():
 
 
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
-def test_torchscript_and_onnx_equal_the_eager_module(tmp_path, scenario, dims):
-    policy = make(scenario, k=9, potential='continuous')
+@pytest.mark.parametrize('encoder', ROW_FREE)
+def test_torchscript_and_onnx_equal_the_eager_module(tmp_path, scenario, dims, encoder):
+    policy = make(scenario, k=9, potential='continuous', encoder=encoder)
     loaded = assert_exports_equal(policy, tmp_path / 'set.pt', *swarm_batch(dims, 9))
-    assert loaded.meta['encoder'] == 'set' and loaded.meta['config']['encoder'] == 'set'
+    assert loaded.meta['encoder'] == encoder and loaded.meta['config']['encoder'] == encoder
 
 
 def test_a_policy_file_without_the_field_loads_as_flat(tmp_path):
@@ -182,9 +190,10 @@ def test_the_set_encoder_derives_its_range_and_k_from_the_data():
 
 
 @pytest.mark.parametrize('scenario,dims', CASES, ids=IDS)
-def test_a_neighbour_in_the_robots_own_state_adds_nothing_to_the_sum(scenario, dims):
+@pytest.mark.parametrize('encoder', ROW_FREE)
+def test_a_neighbour_in_the_robots_own_state_adds_nothing_to_the_sum(scenario, dims, encoder):
     """No constant per neighbour: a denser swarm of copies of the robot does not drift."""
-    policy = make(scenario, k=8, collision=False, wall=False)
+    policy = make(scenario, k=8, collision=False, wall=False, encoder=encoder)
     Y, mask = swarm_batch(dims, 2, n=6, d_cr=0.01)  # the robot alone
     copies = torch.cat([Y[:, :1]] * 8, dim=1), torch.ones(Y.shape[0], 8)
     with torch.no_grad():

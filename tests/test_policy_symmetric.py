@@ -58,7 +58,7 @@ def test_half_turns_are_rotations_that_average_a_constant_to_zero():
         half_turns(4)
 
 
-@pytest.mark.parametrize('encoder', ['flat', 'set'])
+@pytest.mark.parametrize('encoder', ['flat', 'set', 'equivariant'])
 @pytest.mark.parametrize('scenario,p,d', SCENARIOS, ids=IDS)
 def test_the_network_commutes_with_every_half_turn(scenario, p, d, encoder):
     policy = make(scenario, encoder)

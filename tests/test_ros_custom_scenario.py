@@ -97,8 +97,8 @@ def _difference(record, policy_path, steps):
 
 @pytest.mark.parametrize(
     'network',
-    [{'k': 5}, {'k': 12, 'encoder': 'set', 'symmetric': True}],
-    ids=['flat', 'set-symmetric'],  # the paper's network; the custom recipe's
+    [{'k': 5}, {'k': 12, 'encoder': 'set', 'symmetric': True}, {'k': 12, 'encoder': 'equivariant'}],
+    ids=['flat', 'set-symmetric', 'equivariant'],  # the paper's network; the custom recipe's
 )
 def test_first_order_2d_scenario_file_runs_in_lockstep_equal_to_the_offline_rollout(tmp_path, network):
     scenario = _scenario_file(tmp_path, GROUND)

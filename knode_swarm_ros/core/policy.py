@@ -8,7 +8,9 @@
   position matter), ``frame='absolute'`` feeds the paper's raw masked Y. That is
   ``encoder='flat'`` (default): an MLP over the k rows flattened. ``encoder='set'`` is a
   permutation-invariant neighbour encoder (:mod:`.set_encoder`) whose weights do not depend on
-  k, so a policy learnt with a small k runs with a larger one.
+  k, so a policy learnt with a small k runs with a larger one; ``encoder='equivariant'``
+  (:mod:`.equivariant_encoder`) is one too, and exactly rotation-equivariant: pairwise terms
+  along the directions the robots define.
 * ``symmetric=True`` averages ``u_theta`` over the half turns about the coordinate axes
   (:func:`half_turns`): the network is then exactly equivariant under them. Training data
   rotated at random teach a network the symmetry only approximately, and a constant left over
@@ -31,6 +33,7 @@ from typing import Any, Dict, List, Optional
 import torch
 from torch import Tensor, nn
 
+from .equivariant_encoder import EquivariantEncoder
 from .knowledge import (
     AvoidanceGain,
     collision_avoidance,
@@ -41,7 +44,11 @@ from .knowledge import (
 from .scenarios import get_scenario
 from .set_encoder import NeighbourSetEncoder
 
-__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'half_turns']
+__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'ROW_FREE_ENCODERS', 'half_turns']
+
+#: The encoders with no weight per neighbour row (permutation invariant: the rows are summed),
+#: by ``policy.encoder`` name; ``flat`` (the paper's MLP over the k rows) is the other one.
+ROW_FREE_ENCODERS = {'set': NeighbourSetEncoder, 'equivariant': EquivariantEncoder}
 
 
 def half_turns(position_dim: int) -> List[List[float]]:
@@ -98,7 +105,8 @@ class PolicyConfig:
             'hidden': self.hidden >= 1,
             'frame': self.frame in ('relative', 'absolute'),
             # the set encoder is built on offsets to the robot: it has no absolute frame
-            'encoder': self.encoder == 'flat' or (self.encoder == 'set' and self.frame == 'relative'),
+            'encoder': self.encoder == 'flat'
+            or (self.encoder in ROW_FREE_ENCODERS and self.frame == 'relative'),
             'symmetric': isinstance(self.symmetric, bool),
             'potential': self.potential in ('paper', 'continuous'),
             'command_limit': self.command_limit > 0,
@@ -175,8 +183,8 @@ class KNODEPolicy(nn.Module):
         self.input_scale: List[float] = [float(config.position_scale)] * spec.position_dim + [
             float(config.velocity_scale)
         ] * (spec.state_dim - spec.position_dim)
-        if config.encoder == 'set':
-            self.encoder = NeighbourSetEncoder(
+        if config.encoder in ROW_FREE_ENCODERS:
+            self.encoder = ROW_FREE_ENCODERS[config.encoder](
                 spec.state_dim, spec.position_dim, spec.command_dim, config.hidden, self.keep_own_position
             )
         else:

@@ -50,7 +50,7 @@ REQUIRED_KEYS = (
 )
 PathLike = Union[str, os.PathLike]
 #: The policy network's encoders (key ``encoder``; absent means ``flat``).
-ENCODERS = ('flat', 'set')
+ENCODERS = ('flat', 'set', 'equivariant')
 
 #: Allowed ranges of the numeric knode.json keys (inclusive; d_cr and command_limit exclude 0).
 #: Every robot builds and evaluates tensors and buffers from these numbers before checking

@@ -43,6 +43,7 @@ import numpy as np
 
 from knode_swarm_ros.core.geometry import pair_distances
 from knode_swarm_ros.core.metrics import nearest_neighbour_distance
+from knode_swarm_ros.core.policy import ROW_FREE_ENCODERS
 from knode_swarm_ros.core.scenarios import Scenario
 
 __all__ = ['AUTO', 'DERIVED_FIELDS', 'derive', 'auto_fields']
@@ -142,14 +143,15 @@ def derive(
     record: Dict[str, Dict[str, Any]] = {}
 
     def put(dotted: str, value: Any, how: str) -> None:
-        if dotted not in fields:
+        if dotted not in fields or dotted in record:  # the first rule that applies wins
             return
         section, key = dotted.split('.')
         cfg[section][key] = value
         record[dotted] = {'value': value, 'how': how}
 
     median_nn = float(np.median(nn))
-    set_encoder = pol.get('encoder', 'flat') == 'set'
+    encoder = pol.get('encoder', 'flat')
+    set_encoder = encoder in ROW_FREE_ENCODERS
     if set_encoder:
         pairs = np.concatenate([_pair_sample(p) for p in pos])
         q99_pair = float(np.quantile(pairs, 0.99))
@@ -157,7 +159,7 @@ def derive(
             'policy.d_cr',
             round(max(q99_pair, 3.0 * median_nn), 6),
             f'the 99th percentile of the distances between robots ({q99_pair:.4g}), at least 3 x the '
-            f'median nearest-neighbour distance ({median_nn:.4g}): the set encoder sees (almost) the '
+            f'median nearest-neighbour distance ({median_nn:.4g}): the {encoder} encoder sees (almost) the '
             'whole observed swarm and learns how far interactions reach (its inputs hold the distance)',
         )
     else:
@@ -179,8 +181,8 @@ def derive(
             f'1 + the smaller of the {packed} robots within d_cr = {d_cr:.4g} of a robot of a '
             f'close-packed {"hexagonal" if spec.dimensions == 2 else "fcc"} lattice at the median '
             f'nearest-neighbour distance ({median_nn:.4g}) and {DENSER} x the most robots the data show '
-            f'within d_cr ({seen}): room for larger, denser swarms than the data (the set encoder '
-            'has no weight per row)',
+            f'within d_cr ({seen}): room for larger, denser swarms than the data (the {encoder} '
+            'encoder has no weight per row)',
         )
     else:
         put(
@@ -239,6 +241,13 @@ def derive(
         offsets.append(diff[near].ravel())
     offsets = np.concatenate(offsets)
     pos_scale = float(np.sqrt(np.mean(offsets**2))) if offsets.size else median_nn
+    if encoder == 'equivariant':
+        put(
+            'policy.position_scale',
+            round(median_nn or pos_scale or 1.0, 6),
+            'the median nearest-neighbour distance (the equivariant encoder sees log(1 + distance / '
+            "this): resolved at the swarm's own spacing, compressed far away)",
+        )
     put(
         'policy.position_scale',
         round(pos_scale or 1.0, 6),
@@ -275,6 +284,17 @@ def derive(
         )
     else:
         turn, why = True, 'true: the half turns about the axes map the arena onto itself'
+    if encoder == 'equivariant' and spec.arena is None:
+        put(
+            'policy.symmetric',
+            False,
+            'false: the equivariant encoder is exactly rotation-equivariant already',
+        )
+        if not cfg['augment']['rotate']:  # it could not learn the law's preferred direction
+            raise ValueError(
+                "policy.encoder = 'equivariant' is exactly rotation-equivariant, but augment.rotate is "
+                'false (a law that rotations change, without an arena): use policy.encoder set or flat'
+            )
     put('policy.symmetric', turn, why + ' (the network is averaged over the half turns about the axes)')
     return cfg, record
 

@@ -21,6 +21,7 @@ import yaml
 
 from knode_swarm_ros.core import PolicyError, export_policy, get_scenario, load_trajectories
 from knode_swarm_ros.core.errors import KnodeError, RunError
+from knode_swarm_ros.core.policy import ROW_FREE_ENCODERS
 from knode_swarm_ros.core.trajectory import atomic_write
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
 
@@ -243,8 +244,8 @@ class Trainer:
         self.splits, train_parts, val_parts = [], [], []
         datas = [self._load(path) for path in paths]
         rows = pc['k']
-        if pc.get('encoder', 'flat') == 'set':
-            # the set encoder has no weight per row: rows beyond the largest swarm are always masked
+        if pc.get('encoder', 'flat') in ROW_FREE_ENCODERS:
+            # no weight per row: rows beyond the largest swarm are always masked
             rows = min(rows, max(int(np.asarray(d.states).shape[-2]) for d in datas))
         for path, data in zip(paths, datas):
             split = split_data(cfg, data, log)

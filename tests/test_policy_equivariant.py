@@ -1,0 +1,148 @@
+"""The rotation-equivariant encoder (``policy.encoder: equivariant``): exact equivariance under
+rotations for every state kind without an arena, chirality (a mirror does not commute), a
+known answer from hand-set weights, and what the recipe derives for it."""
+
+import os
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import special_ortho_group
+
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, neighbour_matrix
+from knode_swarm_ros.core.errors import ConfigError
+from knode_swarm_ros.core.metrics import nearest_neighbour_distance
+from knode_swarm_ros.core.scenarios import scenario_from_dict
+from training.learning.config import load_config, resolve_config
+
+torch.set_num_threads(1)
+RECIPE = os.path.join(os.path.dirname(__file__), '..', 'config', 'train_custom.yaml')
+
+
+def spec(dims, state, command, arena=None):
+    return scenario_from_dict(
+        dict(name=f'eq{dims}{state}', dimensions=dims, state=state, command=command, dt=0.05, arena=arena)
+    )
+
+
+KINDS = [
+    (2, 'position', 'velocity'),
+    (3, 'position', 'velocity'),
+    (2, 'position_velocity', 'acceleration'),
+    (3, 'position_velocity', 'acceleration'),
+    (2, 'position_heading', 'velocity'),
+    (3, 'position_heading', 'velocity'),
+]
+IDS = ['position2d', 'position3d', 'double-integrator2d', 'double-integrator3d', 'heading2d', 'heading3d']
+
+
+def make(scenario, seed=0, **overrides):
+    torch.manual_seed(seed)
+    base = dict(encoder='equivariant', k=8, d_cr=3.0, hidden=16, position_scale=0.7, velocity_scale=0.8)
+    base.update(overrides)
+    return KNODEPolicy(PolicyConfig(scenario, **base)).eval()
+
+
+def swarm(scenario, n=10, seed=0):
+    rng = np.random.default_rng(seed)
+    z = rng.normal(scale=1.5, size=(n, scenario.state_dim))
+    if scenario.state == 'position_heading':
+        p = scenario.position_dim
+        z[:, p:] /= np.linalg.norm(z[:, p:], axis=1, keepdims=True)
+    Y, mask = neighbour_matrix(z, z, scenario.position_dim, 3.0, 8)
+    return torch.tensor(Y, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32)
+
+
+def on_states(R, Y):
+    """``R [p, p]`` applied to every position and velocity (heading) of ``Y [B, k, d]``."""
+    blocks = Y.shape[-1] // R.shape[0]
+    return Y @ torch.block_diag(*[R] * blocks).T
+
+
+@pytest.mark.parametrize('dims,state,command', KINDS, ids=IDS)
+def test_every_rotation_commutes_with_the_whole_policy(dims, state, command):
+    """Knowledge terms included; no saturation in reach (a per-axis clip is not equivariant)."""
+    scenario = spec(dims, state, command)
+    policy = make(scenario, command_limit=1e6, potential='continuous', collision_d0=1.0)
+    Y, mask = swarm(scenario)
+    assert 0 < mask[:, 1:].sum() < mask[:, 1:].numel()
+    with torch.no_grad():
+        u = policy(Y, mask)
+        assert u.abs().max() > 1e-2  # the check below is not about zeros
+        for seed in range(3):
+            R = torch.tensor(special_ortho_group.rvs(dims, random_state=seed), dtype=torch.float32)
+            torch.testing.assert_close(policy(on_states(R, Y), mask), u @ R.T, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize('dims', [2, 3])
+def test_a_mirror_does_not_commute_so_chiral_laws_keep_their_sense(dims):
+    """The turned vectors (2D) and cross products (3D) flip under a reflection: a policy can
+    learn a swarm that mills one way. The same policy commutes with rotations (above)."""
+    scenario = spec(dims, 'position_velocity', 'acceleration')
+    policy = make(scenario, command_limit=1e6, collision=False)
+    Y, mask = swarm(scenario)
+    mirror = torch.diag(torch.tensor([-1.0] + [1.0] * (dims - 1)))
+    with torch.no_grad():
+        mirrored = policy(on_states(mirror, Y), mask)
+        assert not torch.allclose(mirrored, policy(Y, mask) @ mirror.T, atol=1e-3)
+
+
+def test_hand_set_weights_give_the_central_force_they_encode():
+    """One hidden unit tanh(log(1 + d / s)) as the coefficient of r_hat in the sum channel and,
+    times 0.5, in the mean channel: u_i = (sum_j + 0.5 mean_j) tanh(log(1 + d_ij / s)) r_hat_ij."""
+    scenario = spec(2, 'position', 'velocity')
+    s = 0.7
+    policy = make(scenario, hidden=1, collision=False, command_limit=1e6, position_scale=s)
+    enc = policy.encoder
+    with torch.no_grad():
+        enc.pair.weight.fill_(1.0)
+        enc.pair.bias.zero_()
+        enc.pair_out.weight.copy_(
+            torch.tensor([[1.0], [0.0], [0.5], [0.0]])
+        )  # sum: r_hat, turn; mean: the same
+    Y, mask = swarm(scenario)
+    with torch.no_grad():
+        u = policy(Y, mask).numpy()
+    r = (Y[:, 1:] - Y[:, :1]).numpy().astype(np.float64)
+    d = np.linalg.norm(r, axis=-1, keepdims=True)
+    m = mask[:, 1:].numpy()[..., None]
+    pull = np.tanh(np.log1p(d / s)) * r / np.where(d > 0, d, 1.0) * m
+    expected = pull.sum(1) + 0.5 * pull.sum(1) / np.maximum(m.sum(1), 1.0)
+    np.testing.assert_allclose(u, expected, rtol=1e-5, atol=1e-6)
+
+
+def _recipe(scenario, tracks, **overrides):
+    import json
+
+    ref = json.dumps(scenario.to_dict(), sort_keys=True)
+    sets = {'policy.encoder': 'equivariant', **overrides}
+    return resolve_config(load_config(RECIPE, sets), [tracks], ref, scenario.dt)
+
+
+def _tracks(dims, state, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-2.0, 2.0, size=(2, 6, 9, dims))
+    if state == 'position':
+        return p
+    return np.concatenate([p, rng.normal(scale=0.5, size=p.shape)], axis=-1)
+
+
+def test_the_recipe_derives_the_spacing_as_scale_and_no_half_turns_without_an_arena():
+    scenario = spec(2, 'position', 'velocity')
+    tracks = _tracks(2, 'position')
+    cfg, derived = _recipe(scenario, tracks)
+    expected = np.median(nearest_neighbour_distance(tracks.reshape(-1, 9, 2)))
+    assert cfg['policy']['position_scale'] == pytest.approx(expected, rel=1e-5)
+    assert derived['policy.position_scale']['how'].startswith('the median nearest-neighbour distance')
+    assert cfg['policy']['symmetric'] is False and cfg['augment']['rotate'] is True
+    assert 'exactly rotation-equivariant' in derived['policy.symmetric']['how']
+    # with an arena the own position enters unturned: the half turns keep it symmetric
+    box = spec(3, 'position_velocity', 'acceleration', arena={'half_width': 4.0})
+    cfg, derived = _recipe(box, _tracks(3, 'position_velocity'))
+    assert cfg['policy']['symmetric'] is True and cfg['augment']['rotate'] is False
+
+
+def test_a_law_declared_not_rotation_invariant_is_refused_naming_the_encoder():
+    scenario = spec(2, 'position', 'velocity')
+    with pytest.raises(ConfigError, match="policy.encoder = 'equivariant'.*augment.rotate"):
+        _recipe(scenario, _tracks(2, 'position'), **{'augment.rotate': False})
