@@ -53,7 +53,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog='training.studies.law_fit', description=__doc__.split('\n\n')[0])
     parser.add_argument('--law', choices=sorted(LAWS), required=True)
     parser.add_argument('--seconds', type=float, default=120.0, help='fitting time (Adam)')
-    parser.add_argument('--epochs', type=int, default=None, help='at most this many passes (default: no limit)')
+    parser.add_argument(
+        '--epochs', type=int, default=None, help='at most this many passes (default: no limit)'
+    )
     parser.add_argument('--seed', type=int, default=0, help='starts of the fitted trajectories')
     parser.add_argument('--set', action='append', metavar='KEY=VALUE', help='a recipe field (repeatable)')
     args = parser.parse_args(argv)
