@@ -126,8 +126,9 @@ def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     argv = ['--config', RECIPE, '--data', str(data), '--out', str(run), '--no-progress']
     assert train_main(argv + ['--set', 'training.epochs=1', '--set', 'policy.hidden=8']) == 0
     summary = json.loads((run / 'summary.json').read_text())
-    assert summary['derived']['policy.k']['how'].startswith('1 + the smaller of')  # the set encoder's k
-    assert summary['derived']['policy.symmetric']['value'] is True
+    assert summary['derived']['policy.k']['how'].startswith('1 + the smaller of')  # a row-free encoder's k
+    assert summary['derived']['policy.symmetric']['value'] is False  # equivariant, no arena
+    assert summary['derived']['policy.position_scale']['how'].startswith('the median nearest-neighbour')
     policy = load_policy(str(run / 'policy.pt'))
     assert policy.meta['provenance']['derived']['policy.d_cr']['value'] == policy.d_cr
     assert policy.meta['scenario']['name'] == 'tiny'

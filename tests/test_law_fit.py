@@ -17,10 +17,10 @@ def test_fitting_lowers_the_error_on_held_out_states(capsys):
     signal, untrained, out, robots = _errors(capsys, '--epochs', '0')
     assert '0 epochs' in out and robots == 2 * 101 * 10  # every held-out robot in one bin
     _, fitted, out, _ = _errors(capsys, '--epochs', '3')
-    assert '3 epochs' in out and 'encoder set' in out  # the recipe's network
+    assert '3 epochs' in out and 'encoder equivariant' in out  # the recipe's network
     assert fitted < 0.5 * untrained and fitted < signal
 
 
 def test_recipe_fields_can_be_set(capsys):
-    _, _, out, _ = _errors(capsys, '--epochs', '0', '--set', 'policy.encoder=equivariant')
-    assert 'encoder equivariant, symmetric False' in out
+    _, _, out, _ = _errors(capsys, '--epochs', '0', '--set', 'policy.encoder=set')
+    assert 'encoder set, symmetric True' in out

@@ -84,7 +84,6 @@ class EquivariantEncoder(nn.Module):
         super().__init__()
         self.position_dim = position_dim
         self.moving = state_dim > position_dim
-        self.keep_own_position = keep_own_position
         if self.moving:
             self.vectors = 6  # r_hat, dv, v and their turns (2D) or cross products (3D)
             scalars = 6 + (3 if position_dim == 2 else 1)

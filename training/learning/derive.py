@@ -9,11 +9,11 @@ Inputs are trajectories ``[N, T, n, d]`` at the policy's dt (the file's train sp
 derived, in order (later rules use earlier values, derived or given):
 
 * ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
-  neighbours of a lattice); with ``policy.encoder: set``, the 99th percentile of the distances
+  neighbours of a lattice); with a row-free encoder (``set``, ``equivariant``), the 99th percentile of the distances
   between robots (at least that): the encoder learns the interactions' reach itself;
 * ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
   and at most the smallest swarm's size (``policy.encoder: flat``, whose weights are per row);
-  with ``policy.encoder: set`` (weights independent of k) room for larger, denser swarms than
+  with a row-free encoder (weights independent of k) room for larger, denser swarms than
   the data: 1 + the smaller of the robots within d_cr of a robot of a close-packed lattice
   (hexagonal in 2D, fcc in 3D) at the observed median nearest-neighbour distance and 4 x the
   most robots the data show within d_cr;
@@ -25,13 +25,16 @@ derived, in order (later rules use earlier values, derived or given):
   the push at d0 / 2 is half the command limit;
 * ``policy.wall_d0`` (arena only): the 1st percentile of the robots' distances to the nearest
   wall, at least 2 % of the half width, ``policy.wall_phi`` as for collisions;
-* ``policy.position_scale``: the RMS of the offsets to the neighbours within d_cr;
+* ``policy.position_scale``: the RMS of the offsets to the neighbours within d_cr; with
+  ``policy.encoder: equivariant`` (distances enter as log(1 + d / scale)) the median
+  nearest-neighbour distance;
   ``policy.velocity_scale``: the RMS of the velocity entries (1 for headings or no velocity);
 * ``noise.variance``: (2 % of the smaller input scale)^2;
 * ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
 * ``policy.symmetric``: the network averaged over the half turns about the axes: without an arena
   as ``augment.rotate`` (a law with a preferred direction sets that false), with one true (the
-  half turns map the arena onto itself).
+  half turns map the arena onto itself); false for ``equivariant`` without an arena (exact under
+  every rotation already; with ``augment.rotate: false`` it is refused, naming the encoder).
 """
 
 from __future__ import annotations
