@@ -104,7 +104,7 @@ class PolicyConfig:
             'tau': self.tau >= 0,
             'hidden': self.hidden >= 1,
             'frame': self.frame in ('relative', 'absolute'),
-            # the set encoder is built on offsets to the robot: it has no absolute frame
+            # the row-free encoders are built on offsets to the robot: they have no absolute frame
             'encoder': self.encoder == 'flat'
             or (self.encoder in ROW_FREE_ENCODERS and self.frame == 'relative'),
             'symmetric': isinstance(self.symmetric, bool),

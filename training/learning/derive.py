@@ -154,8 +154,8 @@ def derive(
 
     median_nn = float(np.median(nn))
     encoder = pol.get('encoder', 'flat')
-    set_encoder = encoder in ROW_FREE_ENCODERS
-    if set_encoder:
+    row_free = encoder in ROW_FREE_ENCODERS
+    if row_free:
         pairs = np.concatenate([_pair_sample(p) for p in pos])
         q99_pair = float(np.quantile(pairs, 0.99))
         put(
@@ -175,7 +175,7 @@ def derive(
     n_min = min(f.shape[1] for f in frames)
     counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
     q90 = float(np.quantile(counts, 0.9))
-    if set_encoder:
+    if row_free:
         packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
         seen = int(counts.max())
         put(

@@ -53,10 +53,9 @@ from training.learning.config import load_config
 from training.learning.records import write_json
 
 from .law_noise import import_against_law, law_at, noise_figure, noise_table
-from .laws import LAWS, Law, initial_states, simulate
+from .laws import LAWS, RECIPE, Law, initial_states, simulate
 
 GOALS = {10: (0.15, 0.10), 30: (0.25, 0.15)}  # robots -> (relative nn error, order parameter error)
-RECIPE = os.path.join(os.path.dirname(__file__), '..', '..', 'config', 'train_custom.yaml')
 
 
 def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: int) -> List[str]:
@@ -299,9 +298,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     )
     parser.add_argument('--laws', nargs='+', default=list(LAWS), choices=list(LAWS))
     parser.add_argument('--out', required=True)
-    parser.add_argument(
-        '--config', default=os.path.normpath(RECIPE), help='training recipe (default train_custom.yaml)'
-    )
+    parser.add_argument('--config', default=RECIPE, help='training recipe (default train_custom.yaml)')
     parser.add_argument(
         '--trajectories', type=int, default=12, help='training tracks per law (10 robots each)'
     )

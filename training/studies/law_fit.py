@@ -6,8 +6,8 @@ its error by nearest-neighbour distance (docs/scenarios.md, "Can the network rep
     python -m training.studies.law_fit --law mill2d --seconds 90 --set policy.encoder=equivariant
 
 The law's 10-robot trajectories (starts of ``--seed``: 10 to fit, 2 held out) give the states;
-the recipe (``config/train_custom.yaml`` with ``--set``) derives its fields from the fitted
-ones, as a training does. Adam at the recipe's learning rate for ``--seconds``, one thread.
+the recipe (``--config``, default ``config/train_custom.yaml``, with ``--set``) derives its
+fields from the fitted ones, as a training does. Adam at the recipe's learning rate for ``--seconds``, one thread.
 A one-step training cannot do better than this fit; a rollout of a policy that cannot fit
 its law will drift from it.
 """
@@ -28,8 +28,7 @@ from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.metrics import nearest_neighbour_distance
 from training.learning.config import build_policy, load_config, resolve_config
 
-from .custom_laws import RECIPE
-from .laws import LAWS, initial_states, simulate
+from .laws import LAWS, RECIPE, initial_states, simulate
 
 BINS = (0.0, 0.5, 1.0, 2.0, np.inf)  # nearest-neighbour distance bins, m
 
@@ -48,7 +47,7 @@ def _batch(law, z: np.ndarray):
     )
 
 
-@cli('law_fit')
+@cli('python -m training.studies.law_fit')
 def main(argv: Optional[List[str]] = None) -> int:
     parser = argparse.ArgumentParser(prog='training.studies.law_fit', description=__doc__.split('\n\n')[0])
     parser.add_argument('--law', choices=sorted(LAWS), required=True)
@@ -57,6 +56,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         '--epochs', type=int, default=None, help='at most this many passes (default: no limit)'
     )
     parser.add_argument('--seed', type=int, default=0, help='starts of the fitted trajectories')
+    parser.add_argument('--config', default=RECIPE, help='training recipe (default train_custom.yaml)')
     parser.add_argument('--set', action='append', metavar='KEY=VALUE', help='a recipe field (repeatable)')
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -66,7 +66,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     z = simulate(law, initial_states(law, 12, 10, args.seed), law.steps)  # [12, T, 10, d]
     sets = dict(s.split('=', 1) for s in args.set or [])
     ref = json.dumps(spec.to_dict(), sort_keys=True)
-    cfg, _ = resolve_config(load_config(RECIPE, sets), [z[:10]], ref, spec.dt)
+    cfg, _ = resolve_config(load_config(args.config, sets), [z[:10]], ref, spec.dt)
     cfg['policy'].update(collision=False, wall=False)  # the network alone
     policy = build_policy(cfg)
     Y, mask, U = _batch(law, z[:10])

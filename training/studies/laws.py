@@ -18,6 +18,7 @@ step the learnt policy is rolled out with. Units: metres and seconds.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Callable, Dict
 
@@ -26,7 +27,10 @@ import numpy as np
 from knode_swarm_ros.core.rollout import zoh_step
 from knode_swarm_ros.core.scenarios import Scenario, scenario_from_dict
 
-__all__ = ['Law', 'LAWS', 'simulate', 'initial_states']
+__all__ = ['Law', 'LAWS', 'RECIPE', 'simulate', 'initial_states']
+
+#: The generic recipe these laws are learnt with.
+RECIPE = os.path.normpath(os.path.join(os.path.dirname(__file__), '..', '..', 'config', 'train_custom.yaml'))
 
 
 @dataclass(frozen=True)
