@@ -84,7 +84,9 @@ def test_a_hung_clean_up_after_the_save_ends_with_status_0_and_the_whole_file(tm
     from knode_swarm_ros.core.groundtruth import simulate
 
     before = shm_snapshot()
-    rec, rec_log = _recorder(tmp_path, '_end_context', 1.0)
+    # the deadline must outlast the real teardown before the hung step: under two suites' load
+    # destroy_node alone once took longer than 1 s, and the watchdog ended the process first
+    rec, rec_log = _recorder(tmp_path, '_end_context', 5.0)
     sim = _simulator(
         tmp_path,
         '-p',
