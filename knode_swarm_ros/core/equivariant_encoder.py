@@ -20,7 +20,9 @@ networks:
   norms and dot products of those vectors and their signed areas (2D) or triple product (3D);
 * one tanh layer gives the coefficients of the sum channel (grows with the neighbour count,
   as a force does) and of the mean channel (does not: alignment, the centroid); a neighbour in
-  the robot's own state adds nothing (its coefficients are subtracted);
+  the robot's own state adds nothing (its direction and velocity difference are zero, and the
+  own velocity's coefficients are taken relative to its), yet the push along ``r_hat`` may stay
+  finite as two robots touch, as a repulsion that is finite at contact does;
 * the own term ``b_c`` (one tanh layer on ``|v|`` and the neighbours' mean hidden units)
   scales ``v`` (2D: and ``v`` turned), the self-propulsion of most laws.
 

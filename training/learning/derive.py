@@ -9,8 +9,9 @@ Inputs are trajectories ``[N, T, n, d]`` at the policy's dt (the file's train sp
 derived, in order (later rules use earlier values, derived or given):
 
 * ``policy.d_cr``: 3 x the median nearest-neighbour distance (the first three shells of
-  neighbours of a lattice); with a row-free encoder (``set``, ``equivariant``), the 99th percentile of the distances
-  between robots (at least that): the encoder learns the interactions' reach itself;
+  neighbours of a lattice); with a row-free encoder (``set``, ``equivariant``), the 99th
+  percentile of the distances between robots (at least that): the encoder learns the
+  interactions' reach itself;
 * ``policy.k``: 1 + the 90th percentile of the number of other robots within d_cr, at least 2
   and at most the smallest swarm's size (``policy.encoder: flat``, whose weights are per row);
   with a row-free encoder (weights independent of k) room for larger, denser swarms than
@@ -146,7 +147,7 @@ def derive(
     record: Dict[str, Dict[str, Any]] = {}
 
     def put(dotted: str, value: Any, how: str) -> None:
-        if dotted not in fields or dotted in record:  # the first rule that applies wins
+        if dotted not in fields:
             return
         section, key = dotted.split('.')
         cfg[section][key] = value
@@ -235,27 +236,19 @@ def derive(
     else:
         put('policy.wall_d0', 1.0, 'unused: the scenario has no arena')
         put('policy.wall_phi', 1.0, 'unused: the scenario has no arena')
-    offsets = []
-    for p in pos:
-        p = p[:: max(1, p.shape[0] * p.shape[1] ** 2 // 2_000_000)]  # bounded memory for large swarms
-        diff = p[:, None, :, :] - p[:, :, None, :]  # [F, n, n, dim]
-        dist = np.linalg.norm(diff, axis=-1)
-        near = (dist <= d_cr) & (dist > 0)
-        offsets.append(diff[near].ravel())
-    offsets = np.concatenate(offsets)
-    pos_scale = float(np.sqrt(np.mean(offsets**2))) if offsets.size else median_nn
     if encoder == 'equivariant':
         put(
             'policy.position_scale',
-            round(median_nn or pos_scale or 1.0, 6),
+            round(median_nn or _neighbour_offset_rms(pos, d_cr, median_nn) or 1.0, 6),
             'the median nearest-neighbour distance (the equivariant encoder sees log(1 + distance / '
             "this): resolved at the swarm's own spacing, compressed far away)",
         )
-    put(
-        'policy.position_scale',
-        round(pos_scale or 1.0, 6),
-        'the RMS of the offsets to the neighbours within d_cr (the network sees positions / this)',
-    )
+    else:
+        put(
+            'policy.position_scale',
+            round(_neighbour_offset_rms(pos, d_cr, median_nn) or 1.0, 6),
+            'the RMS of the offsets to the neighbours within d_cr (the network sees positions / this)',
+        )
     if spec.velocity is not None:
         put(
             'policy.velocity_scale',
@@ -280,26 +273,38 @@ def derive(
         if spec.arena is None
         else 'false: the arena breaks rotational symmetry',
     )
-    if spec.arena is None:
-        turn = bool(cfg['augment']['rotate'])
-        why = 'as augment.rotate: ' + (
-            'the law is taken to be rotation invariant' if turn else 'rotations are off'
-        )
-    else:
-        turn, why = True, 'true: the half turns about the axes map the arena onto itself'
-    if encoder == 'equivariant' and spec.arena is None:
-        put(
-            'policy.symmetric',
-            False,
-            'false: the equivariant encoder is exactly rotation-equivariant already',
-        )
+    averaged = ' (the network is averaged over the half turns about the axes)'
+    if spec.arena is not None:
+        turn, why = True, 'true: the half turns about the axes map the arena onto itself' + averaged
+    elif encoder == 'equivariant':
         if not cfg['augment']['rotate']:  # it could not learn the law's preferred direction
             raise ValueError(
                 "policy.encoder = 'equivariant' is exactly rotation-equivariant, but augment.rotate is "
                 'false (a law that rotations change, without an arena): use policy.encoder set or flat'
             )
-    put('policy.symmetric', turn, why + ' (the network is averaged over the half turns about the axes)')
+        turn, why = False, 'false: the equivariant encoder is exactly rotation-equivariant already'
+    else:
+        turn = bool(cfg['augment']['rotate'])
+        why = 'as augment.rotate: ' + (
+            'the law is taken to be rotation invariant' if turn else 'rotations are off'
+        )
+        why += averaged
+    put('policy.symmetric', turn, why)
     return cfg, record
+
+
+def _neighbour_offset_rms(pos: Sequence[np.ndarray], d_cr: float, empty: float) -> float:
+    """The RMS of the offsets between robots within ``d_cr`` in frames ``pos [F, n, dim]``
+    (``empty`` where no two robots are that close)."""
+    offsets = []
+    for p in pos:
+        p = p[:: max(1, p.shape[0] * p.shape[1] ** 2 // 2_000_000)]  # bounded memory for large swarms
+        diff = p[:, None, :, :] - p[:, :, None, :]  # [F, n, n, dim]
+        dist = np.linalg.norm(diff, axis=-1)
+        near = (dist <= d_cr) & (dist > 0)
+        offsets.append(diff[near].ravel())
+    flat = np.concatenate(offsets)
+    return float(np.sqrt(np.mean(flat**2))) if flat.size else empty
 
 
 def _velocity_entries(frames, trajectories, spec: Scenario, dt: float) -> np.ndarray:

@@ -7,9 +7,10 @@ its error by nearest-neighbour distance (docs/scenarios.md, "Can the network rep
 
 The law's 10-robot trajectories (starts of ``--seed``: 10 to fit, 2 held out) give the states;
 the recipe (``--config``, default ``config/train_custom.yaml``, with ``--set``) derives its
-fields from the fitted ones, as a training does. Adam at the recipe's learning rate for ``--seconds``, one thread.
-A one-step training cannot do better than this fit; a rollout of a policy that cannot fit
-its law will drift from it.
+fields from the fitted ones, as a training does. Adam at the recipe's learning rate for
+``--seconds`` (or ``--epochs``), one thread. A one-step training learns the same map from the
+same states, so it can hardly fit better; a rollout of a policy that cannot fit its law drifts
+from it.
 """
 
 from __future__ import annotations
