@@ -10,6 +10,7 @@ import torch
 from scipy.stats import special_ortho_group
 
 from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, neighbour_matrix
+from knode_swarm_ros.core.equivariant_encoder import DISTANCE_BASIS
 from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.metrics import nearest_neighbour_distance
 from knode_swarm_ros.core.scenarios import scenario_from_dict
@@ -87,15 +88,19 @@ def test_a_mirror_does_not_commute_so_chiral_laws_keep_their_sense(dims):
         assert not torch.allclose(mirrored, policy(Y, mask) @ mirror.T, atol=1e-3)
 
 
-def test_hand_set_weights_give_the_central_force_they_encode():
-    """One hidden unit tanh(log(1 + d / s)) as the coefficient of r_hat in the sum channel and,
-    times 0.5, in the mean channel: u_i = (sum_j + 0.5 mean_j) tanh(log(1 + d_ij / s)) r_hat_ij."""
+@pytest.mark.parametrize('column', [0, 1, 12, DISTANCE_BASIS])
+def test_hand_set_weights_give_the_central_force_they_encode(column):
+    """One hidden unit on one radial input as the coefficient of r_hat in the sum channel and,
+    times 0.5, in the mean channel: u_i = (sum_j + 0.5 mean_j) tanh(x(d_ij)) r_hat_ij, where x is
+    log(1 + d / s) (column 0) or the Gaussian of it centred at log(1 + d_cr / s) (column - 1) / 31
+    (column >= 1: contact, between, the communication radius)."""
     scenario = spec(2, 'position', 'velocity')
-    s = 0.7
-    policy = make(scenario, hidden=1, collision=False, command_limit=1e6, position_scale=s)
+    s, d_cr = 0.7, 5.0
+    policy = make(scenario, hidden=1, collision=False, command_limit=1e6, position_scale=s, d_cr=d_cr)
     enc = policy.encoder
     with torch.no_grad():
-        enc.pair.weight.fill_(1.0)
+        enc.pair.weight.zero_()
+        enc.pair.weight[0, column] = 1.0
         enc.pair.bias.zero_()
         enc.pair_out.weight.copy_(
             torch.tensor([[1.0], [0.0], [0.5], [0.0]])
@@ -106,7 +111,11 @@ def test_hand_set_weights_give_the_central_force_they_encode():
     r = (Y[:, 1:] - Y[:, :1]).numpy().astype(np.float64)
     d = np.linalg.norm(r, axis=-1, keepdims=True)
     m = mask[:, 1:].numpy()[..., None]
-    pull = np.tanh(np.log1p(d / s)) * r / np.where(d > 0, d, 1.0) * m
+    x = np.log1p(d / s)
+    if column:
+        width = np.log1p(d_cr / s) / (DISTANCE_BASIS - 1)
+        x = np.exp(-(((x - (column - 1) * width) / width) ** 2))
+    pull = np.tanh(x) * r / np.where(d > 0, d, 1.0) * m
     expected = pull.sum(1) + 0.5 * pull.sum(1) / np.maximum(m.sum(1), 1.0)
     np.testing.assert_allclose(u, expected, rtol=1e-5, atol=1e-6)
 

@@ -16,8 +16,11 @@ networks:
   ``v`` enter as ``x / sqrt(1 + |x|^2)`` (in units of the velocity scale), so every term is
   bounded whatever the inputs;
 * pair scalars ``s_ij``: ``log(1 + d)`` (d in units of the policy's position scale, so a
-  short-range repulsion and a weak far attraction both reach the tanh units at O(1)), the
-  norms and dot products of those vectors and their signed areas (2D) or triple product (3D);
+  short-range repulsion and a weak far attraction both reach the tanh units at O(1)) and its
+  radial basis (:data:`DISTANCE_BASIS` Gaussians evenly spaced on ``log(1 + d)`` from contact to
+  the communication radius, as SchNet-like networks encode distances: one tanh layer on
+  ``log(1 + d)`` alone fits a force that changes fast at short range poorly), the norms and dot
+  products of those vectors and their signed areas (2D) or triple product (3D);
 * one tanh layer gives the coefficients of the sum channel (grows with the neighbour count,
   as a force does) and of the mean channel (does not: alignment, the centroid); a neighbour in
   the robot's own state adds nothing (its direction and velocity difference are zero, and the
@@ -36,12 +39,16 @@ A position-only state has no velocity: the vectors are ``r_hat`` (and, in 2D, it
 
 from __future__ import annotations
 
+import math
 from typing import List
 
 import torch
 from torch import Tensor, nn
 
-__all__ = ['EquivariantEncoder']
+__all__ = ['EquivariantEncoder', 'DISTANCE_BASIS']
+
+#: Gaussians of the pair distance the pair layer sees beside ``log(1 + d)``.
+DISTANCE_BASIS = 32
 
 
 def _left(x: Tensor) -> Tensor:
@@ -81,8 +88,16 @@ class EquivariantEncoder(nn.Module):
     """``forward(Y [B, k, d], mask [B, k]) -> [B, m]`` (the network part, before knowledge)."""
 
     def __init__(
-        self, state_dim: int, position_dim: int, command_dim: int, hidden: int, keep_own_position: bool
+        self,
+        state_dim: int,
+        position_dim: int,
+        command_dim: int,
+        hidden: int,
+        keep_own_position: bool,
+        reach: float = 8.0,
     ):
+        """``reach``: the communication radius in units of the position scale (the farthest
+        neighbour distance the basis resolves)."""
         super().__init__()
         self.position_dim = position_dim
         self.moving = state_dim > position_dim
@@ -92,6 +107,11 @@ class EquivariantEncoder(nn.Module):
         else:
             self.vectors = 2 if position_dim == 2 else 1
             scalars = 1
+        scalars += DISTANCE_BASIS
+        top = math.log1p(float(reach))
+        # plain floats, as the other constants here: ONNX export takes flat lists
+        self.basis_centres: List[float] = [top * i / (DISTANCE_BASIS - 1) for i in range(DISTANCE_BASIS)]
+        self.basis_width = top / (DISTANCE_BASIS - 1)
         self.own_vectors = (2 if position_dim == 2 else 1) if self.moving else 0
         # 1 for the pair vectors that do not vanish for a neighbour in the own state (v, v turned),
         # per channel (sum, then mean): plain floats, as the half-turn signs, for ONNX export
@@ -119,13 +139,15 @@ class EquivariantEncoder(nn.Module):
         d = _norm(r)
         rh = r / d
         logd = torch.log(1.0 + d)
+        centres = torch.tensor(self.basis_centres, dtype=r.dtype, device=r.device)
+        radial = torch.cat([logd, torch.exp(-(((logd - centres) / self.basis_width) ** 2))], dim=-1)
         dv, v = _soft(dv), _soft(v)
         if not self.moving:
             if self.position_dim == 2:
-                return logd, torch.stack([rh, _left(rh)], dim=2)
-            return logd, rh.unsqueeze(2)
+                return radial, torch.stack([rh, _left(rh)], dim=2)
+            return radial, rh.unsqueeze(2)
         base = [
-            logd,
+            radial,
             _norm(dv),
             _norm(v),
             _dot(rh, dv),

@@ -185,7 +185,12 @@ class KNODEPolicy(nn.Module):
         ] * (spec.state_dim - spec.position_dim)
         if config.encoder in ROW_FREE_ENCODERS:
             self.encoder = ROW_FREE_ENCODERS[config.encoder](
-                spec.state_dim, spec.position_dim, spec.command_dim, config.hidden, self.keep_own_position
+                spec.state_dim,
+                spec.position_dim,
+                spec.command_dim,
+                config.hidden,
+                self.keep_own_position,
+                reach=config.d_cr / config.position_scale,
             )
         else:
             n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)

@@ -29,8 +29,16 @@ class NeighbourSetEncoder(nn.Module):
     """``forward(Y [B, k, d], mask [B, k]) -> [B, m]`` (the network part, before knowledge)."""
 
     def __init__(
-        self, state_dim: int, position_dim: int, command_dim: int, hidden: int, keep_own_position: bool
+        self,
+        state_dim: int,
+        position_dim: int,
+        command_dim: int,
+        hidden: int,
+        keep_own_position: bool,
+        reach: float = 0.0,
     ):
+        """``reach`` (the communication radius in position scales) is not used: the set encoder
+        sees the offsets themselves."""
         super().__init__()
         self.position_dim = position_dim
         self.keep_own_position = keep_own_position

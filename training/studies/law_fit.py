@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from knode_swarm_ros.core import neighbour_matrix
-from knode_swarm_ros.core.cli import cli
+from knode_swarm_ros.core.cli import cli, parse_set
 from knode_swarm_ros.core.metrics import nearest_neighbour_distance
 from training.learning.config import build_policy, load_config, resolve_config
 
@@ -65,9 +65,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     law = LAWS[args.law]
     spec = law.scenario
     z = simulate(law, initial_states(law, 12, 10, args.seed), law.steps)  # [12, T, 10, d]
-    sets = dict(s.split('=', 1) for s in args.set or [])
     ref = json.dumps(spec.to_dict(), sort_keys=True)
-    cfg, _ = resolve_config(load_config(args.config, sets), [z[:10]], ref, spec.dt)
+    cfg, _ = resolve_config(load_config(args.config, parse_set(args.set)), [z[:10]], ref, spec.dt)
     cfg['policy'].update(collision=False, wall=False)  # the network alone
     policy = build_policy(cfg)
     Y, mask, U = _batch(law, z[:10])
