@@ -80,6 +80,7 @@ CASES = [
     ('demo', '--trajectories 1 --robots 2 --steps 3 --policy {tmp}/missing.pt --out {tmp}/out', 'missing.pt'),
     ('studies.gains', '--policy {tmp}/missing.pt --steps 3 --frames 1 2', 'missing.pt'),
     ('studies.custom_laws', '--out {tmp}/out --config {tmp}/missing.yaml', 'missing.yaml'),
+    ('studies.custom_laws', '--out {tmp}/out --track-robots 10 1', '--track-robots'),
     ('studies.law_fit', '--law mill2d --config {tmp}/missing.yaml', 'missing.yaml'),
 ]
 

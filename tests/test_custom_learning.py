@@ -106,6 +106,56 @@ def test_random_rotations_are_rotations(dims):
     assert torch.allclose(torch.linalg.det(R), torch.ones(64), atol=1e-5)
 
 
+def line_tracks(n, spacing, frames=20):
+    """``[1, frames, n, 4]``: n robots on a line ``spacing`` apart, drifting together."""
+    z = np.zeros((1, frames, n, 4))
+    z[..., 0] = spacing * np.arange(n) + 0.1 * np.arange(frames)[:, None]
+    z[..., 2] = 2.0  # the velocity entries
+    return z
+
+
+def test_a_caveat_where_the_data_cannot_tell_a_sum_from_a_mean():
+    """One swarm size in which every robot sees every other: the caveat, with the counts; a robot
+    beyond d_cr in most frames, or tracks of two sizes: none."""
+    from training.learning.derive import size_caveat
+
+    moving = scenario(2, 'position_velocity', 'acceleration')
+    caveat = size_caveat([line_tracks(5, 1.0)], moving, d_cr=4.5)  # 4.5 m spans the line
+    assert caveat is not None and 'all 4 others within d_cr = 4.5' in caveat and 'in 100 %' in caveat
+    assert size_caveat([line_tracks(5, 1.0)], moving, d_cr=3.5) is None  # the ends never see each other
+    assert size_caveat([line_tracks(5, 1.0), line_tracks(8, 0.5)], moving, d_cr=4.5) is None
+
+
+def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
+    """custom_laws --track-robots 6 4: tracks of each size, imported apart, one training on both
+    files (its provenance lists both sizes), evaluated at a third size; the results are keyed by
+    the folder."""
+    from training.studies.custom_laws import main
+
+    out = tmp_path / 'laws'
+    argv = ['--laws', 'aggregate2d', '--out', str(out), '--track-robots', '6', '4', '--trajectories', '3']
+    argv += ['--eval-robots', '5', '--starts', '2']
+    for item in (
+        'training.epochs=1',
+        'policy.hidden=8',
+        'data.val_trajectories=1',
+        'selection.trajectories=1',
+    ):
+        argv += ['--set', item]
+    assert main(argv) == 0
+    folder = out / 'aggregate2d_tracks4+6'
+    for n in (4, 6):
+        assert np.load(folder / f'tracks_n{n}.npz')['states'].shape[-2] == n
+    policy = load_policy(str(folder / 'run' / 'policy.pt'))
+    assert policy.meta['provenance']['robots'] == [4, 6]
+    assert policy.meta['provenance']['data_file'] == ['tracks_n4.npz', 'tracks_n6.npz']
+    assert 'caveats' not in json.loads((folder / 'run' / 'summary.json').read_text())  # two sizes
+    results = json.loads((out / 'results.json').read_text())
+    assert list(results) == ['aggregate2d_tracks4+6']
+    assert results['aggregate2d_tracks4+6']['n5']['robots'] == 5
+    assert len(results['aggregate2d_tracks4+6']['n5']['orders']['nn_distance']['per_rollout']['learnt']) == 2
+
+
 def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     """CSV tracks of a tiny law -> import_tracks -> train (1 epoch, train_custom.yaml) -> evaluate."""
     from training.evaluate import main as evaluate_main

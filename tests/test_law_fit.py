@@ -24,3 +24,6 @@ def test_fitting_lowers_the_error_on_held_out_states(capsys):
 def test_recipe_fields_can_be_set(capsys):
     _, _, out, _ = _errors(capsys, '--epochs', '0', '--set', 'policy.encoder=set')
     assert 'encoder set, symmetric True' in out
+    # values are YAML, as training.train's: a number is a number, not the string '0.5'
+    _, _, out, _ = _errors(capsys, '--epochs', '0', '--set', 'policy.position_scale=0.5')
+    assert 'position scale 0.5:' in out

@@ -41,7 +41,7 @@ derived, in order (later rules use earlier values, derived or given):
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -50,7 +50,7 @@ from knode_swarm_ros.core.metrics import nearest_neighbour_distance
 from knode_swarm_ros.core.policy import ROW_FREE_ENCODERS
 from knode_swarm_ros.core.scenarios import Scenario
 
-__all__ = ['AUTO', 'DERIVED_FIELDS', 'derive', 'auto_fields']
+__all__ = ['AUTO', 'DERIVED_FIELDS', 'derive', 'auto_fields', 'size_caveat']
 
 AUTO = 'auto'
 #: The config fields that may be ``auto`` (section.key).
@@ -291,6 +291,31 @@ def derive(
         why += averaged
     put('policy.symmetric', turn, why)
     return cfg, record
+
+
+def size_caveat(trajectories: Sequence[np.ndarray], spec: Scenario, d_cr: float) -> Optional[str]:
+    """A sentence where the data cannot say how the law scales with the swarm's size, else None.
+
+    With one swarm size n in every file and (almost, 95 % of the robots in the frames) every
+    robot seeing all n - 1 others within ``d_cr``, a force summed over the neighbours and one
+    averaged over them (or scaled by 1 / n) give the same commands on every sample: which one
+    the training picks is arbitrary, and a larger swarm will show it.
+    """
+    sizes = sorted({int(np.shape(t)[-2]) for t in trajectories})
+    if len(sizes) != 1 or sizes[0] < 3:
+        return None
+    n = sizes[0]
+    pos = [f[..., spec.position] for f in _frames(trajectories)]
+    counts = np.concatenate([(pair_distances(p) <= d_cr).sum(axis=-1).ravel() for p in pos])
+    share = float(np.mean(counts >= n - 1))
+    if share < 0.95:
+        return None
+    return (
+        f'every robot sees all {n - 1} others within d_cr = {d_cr:.4g} in {100 * share:.0f} % of the '
+        f'frames of the one swarm size ({n}) in the data: the data cannot tell a force summed over '
+        'the neighbours from one averaged over them, so behaviour at other sizes is a guess; tracks '
+        'of a second swarm size (--data a.npz b.npz) can tell them apart'
+    )
 
 
 def _neighbour_offset_rms(pos: Sequence[np.ndarray], d_cr: float, empty: float) -> float:

@@ -26,6 +26,7 @@ from knode_swarm_ros.core.trajectory import atomic_write
 from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
 
 from .config import ConfigError, PendingConfig, build_policy, complete_config
+from .derive import size_caveat
 from .objectives import TrainingData, make_objective
 from .objectives.one_step import OneStepObjective
 from .period import period_ratio, policy_dt, subsample
@@ -273,6 +274,10 @@ class Trainer:
                     make_samples(split['val'], self.spec, pc['d_cr'], rows, pc['tau'], 1, ratio=self.ratio)
                 )
         self.split = self.splits[0]
+        caveat = size_caveat([sp['train'] for sp in self.splits], self.spec, float(pc['d_cr']))
+        self.caveats: List[str] = [] if caveat is None else [caveat]
+        for line in self.caveats:
+            self.log(f'caveat: {line}')
         self.train = concat_samples(train_parts)
         self.val = concat_samples(val_parts) if val_parts else None
         self.dropped = 0
@@ -657,6 +662,8 @@ class Trainer:
         }
         if self.derived:
             meta['provenance']['derived'] = self.derived
+        if self.caveats:
+            meta['provenance']['caveats'] = self.caveats
         path = os.path.join(self.out, 'policy.pt')
         export_policy(self.policy, path, meta)
         onnx_twin = self._export_twin(path)
@@ -676,5 +683,7 @@ class Trainer:
         }
         if self.derived:
             summary['derived'] = self.derived
+        if self.caveats:
+            summary['caveats'] = self.caveats
         write_json(os.path.join(self.out, 'summary.json'), summary)
         return summary

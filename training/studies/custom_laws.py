@@ -8,6 +8,7 @@ your own").
     python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 0 2 10 \
         --rate 30 120 --train-seeds 0 1 --eval-robots 10
     python -m training.studies.custom_laws --out runs/flat --set policy.encoder=flat --starts 16
+    python -m training.studies.custom_laws --laws mill2d --out runs/laws --track-robots 10 20
 
 With ``--noise-mm`` the tracks are a mocap recording of the law instead (:func:`write_noisy_tracks`:
 positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped samples), so the
@@ -17,6 +18,9 @@ one per noise level and rate, and ``OUT/LAW_noise.md`` / ``OUT/LAW_noise.png`` c
 law and, per held-out start, against the 0-mm recording of the same rate and seed).
 ``--train-seeds`` trains once per seed on each import (``run_seedK/``, ``eval_nN_seedK/``; the
 recipe's own seed keeps ``run/``).
+``--track-robots 10 20`` tracks swarms of each size (``--trajectories`` of each, ``csv_nN/``,
+``tracks_nN.npz``) and trains one policy on all of them, in ``OUT/LAW_tracks10+20``: a law
+whose forces depend on the swarm's size shows how only in tracks of more than one size.
 
 A step whose output exists is skipped (the tracks once imported, a training with its
 ``training.json``, an evaluation of it), so the same command resumes a killed study or extends it
@@ -125,8 +129,11 @@ def _run(argv: List[str], log) -> None:
     subprocess.run([sys.executable, '-m', *argv], check=True, env=env)
 
 
-def evaluate_law(law: Law, policy_path: str, out: str, robots: int, starts: int, seed: int) -> Dict[str, Any]:
-    """Learnt against the law from ``starts`` held-out starts of ``robots`` robots."""
+def evaluate_law(
+    law: Law, policy_path: str, out: str, robots: int, starts: int, seed: int, learnt_on=(10,)
+) -> Dict[str, Any]:
+    """Learnt against the law from ``starts`` held-out starts of ``robots`` robots (the policy
+    learnt on tracks of ``learnt_on`` robots: the figure's title)."""
     spec = law.scenario
     policy = load_policy(policy_path)
     z0 = initial_states(law, starts, robots, seed)
@@ -141,7 +148,7 @@ def evaluate_law(law: Law, policy_path: str, out: str, robots: int, starts: int,
         pred,
         truth,
         spec.dt,
-        f'{law.name}: {robots} robots, {starts} held-out starts, learnt on 10',
+        f'{law.name}: {robots} robots, {starts} held-out starts, learnt on {" + ".join(map(str, learnt_on))}',
     )
     rel_tol, order_tol = GOALS.get(robots, GOALS[30])
     mean = {name: (e['learnt']['mean'], e['observed']['mean']) for name, e in orders.items()}
@@ -179,7 +186,9 @@ def _recipe_seed(config: str) -> int:
         return int((yaml.safe_load(fh) or {}).get('seed', 0))
 
 
-def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) -> Optional[Dict[str, Any]]:
+def _train_and_evaluate(
+    law: Law, folder: str, data: List[str], seed: int, args, log
+) -> Optional[Dict[str, Any]]:
     """One training on ``data`` and its evaluation: ``run/`` with the recipe's seed, ``run_seedK/``
     with another; a step whose output exists is skipped, so a killed study resumes. With
     ``--report``, None where the training or an evaluation has not run."""
@@ -196,7 +205,16 @@ def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) 
     if args.evaluate_only and trained:
         raise KnodeError(f'--evaluate-only: no trained policy in {run_dir} (its policy.pt and {record})')
     if trained:
-        train = ['training.train', '--config', args.config, '--data', data, '--out', run_dir, '--no-progress']
+        train = [
+            'training.train',
+            '--config',
+            args.config,
+            '--data',
+            *data,
+            '--out',
+            run_dir,
+            '--no-progress',
+        ]
         train += ['--set', f'training.max_minutes={args.max_minutes}']
         train += ['--set', f'seed={seed}'] if tail else []
         for item in args.set or []:
@@ -215,7 +233,7 @@ def _train_and_evaluate(law: Law, folder: str, data: str, seed: int, args, log) 
         if not trained and not args.evaluate_only and os.path.exists(os.path.join(out, 'results.json')):
             r = _read_json(os.path.join(out, 'results.json'))
         else:
-            r = evaluate_law(law, policy, out, robots, args.starts, args.seed + 1000)
+            r = evaluate_law(law, policy, out, robots, args.starts, args.seed + 1000, args.track_robots)
         result[f'n{robots}'] = r
         log(f'{law.name}{tail}, {robots} robots: ' + ', '.join(f'{k}={v}' for k, v in r['goals'].items()))
     lines = [f'# {law.name}: learnt (config/train_custom.yaml) against the law', '']
@@ -236,6 +254,11 @@ def _read_json(path: str) -> Dict[str, Any]:
         return json.load(fh)
 
 
+def _tracks_tail(sizes: List[int]) -> str:
+    """The folder's (and results key's) tail for tracks of other sizes than 10 robots alone."""
+    return '' if sizes == [10] else '_tracks' + '+'.join(map(str, sizes))
+
+
 def run_law(
     law: Law, out: str, args, log=print, noise_mm: Optional[float] = None, rate: float = 120.0
 ) -> Optional[Dict[str, Any]]:
@@ -243,27 +266,32 @@ def run_law(
     training per ``--train-seeds`` (the recipe's seed without) and their evaluations."""
     noisy = noise_mm is not None
     folder = os.path.join(out, f'{law.name}_{noise_mm:g}mm_{rate:g}hz' if noisy else law.name)
-    data = os.path.join(folder, 'tracks.npz')
-    if args.report and not os.path.exists(data):
+    sizes = args.track_robots
+    folder += _tracks_tail(sizes)
+    # one file per tracked swarm size: the trainer takes them together (one size-free policy)
+    data = [os.path.join(folder, 'tracks.npz' if n == 10 else f'tracks_n{n}.npz') for n in sizes]
+    if args.report and not all(map(os.path.exists, data)):
         return None
     os.makedirs(folder, exist_ok=True)
     scenario = os.path.join(folder, 'scenario.yaml')
     with open(scenario, 'w') as fh:
         yaml.safe_dump(law.scenario.to_dict(), fh, sort_keys=False)
-    if not os.path.exists(data):
-        csv_dir = os.path.join(folder, 'csv')
+    for n, path in zip(sizes, data):
+        if os.path.exists(path):
+            continue
+        csv_dir = os.path.join(folder, 'csv' if n == 10 else f'csv_n{n}')
         if noisy:
-            csvs = write_noisy_tracks(law, csv_dir, args.trajectories, 10, args.seed, noise_mm / 1000, rate)
+            csvs = write_noisy_tracks(law, csv_dir, args.trajectories, n, args.seed, noise_mm / 1000, rate)
         else:
-            csvs = write_tracks(law, csv_dir, args.trajectories, 10, args.seed)
-        _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', data], log)
+            csvs = write_tracks(law, csv_dir, args.trajectories, n, args.seed)
+        _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', path], log)
     seeds = args.train_seeds or [_recipe_seed(args.config)]
     results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
     if not results:
         return None
     result = dict(results[0])
     if noisy:
-        imp = import_against_law(law, data, args.trajectories, 10, args.seed)
+        imp = import_against_law(law, data[0], args.trajectories, sizes[0], args.seed)
         log(
             f'{os.path.basename(folder)}: noise estimate {imp["noise_estimate"] * 1e3:.3g} mm, import against '
             f'the law: positions {imp["position_rms"] * 1e3:.3g} mm, velocities {imp["velocity_rms"] * 1e3:.3g} mm/s rms'
@@ -300,7 +328,16 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument('--out', required=True)
     parser.add_argument('--config', default=RECIPE, help='training recipe (default train_custom.yaml)')
     parser.add_argument(
-        '--trajectories', type=int, default=12, help='training tracks per law (10 robots each)'
+        '--trajectories', type=int, default=12, help='training tracks per law and tracked swarm size'
+    )
+    parser.add_argument(
+        '--track-robots',
+        type=int,
+        nargs='+',
+        default=[10],
+        metavar='N',
+        help='robots in the tracked swarm (several: tracks of each size, one training on all; '
+        'the folder is then LAW_tracksN+M)',
     )
     parser.add_argument('--max-minutes', type=float, default=10.0, help='training.max_minutes of each run')
     parser.add_argument('--seed', type=int, default=0)
@@ -353,13 +390,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         parser.error(f'--noise-mm needs a velocity state; {", ".join(flat)} has positions only')
     if args.noise_mm is not None and (min(args.noise_mm) < 0 or min(args.rate) <= 0):
         parser.error(f'--noise-mm must be >= 0 and --rate > 0, got {args.noise_mm} and {args.rate}')
+    if min(args.track_robots) < 2:
+        raise KnodeError(f'--track-robots must be at least 2 robots each, got {args.track_robots}')
+    args.track_robots = sorted(set(args.track_robots))
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
     results: Dict[str, Any] = {}
     for name in args.laws:
         if args.noise_mm is None:
             r = run_law(LAWS[name], args.out, args)
             if r is not None:
-                results[name] = r
+                results[name + _tracks_tail(args.track_robots)] = r
             write_json(os.path.join(args.out, 'results.json'), results)
             continue
         for rate in args.rate:
