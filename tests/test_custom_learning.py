@@ -142,6 +142,8 @@ def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
         'selection.trajectories=1',
     ):
         argv += ['--set', item]
+    out.mkdir()
+    (out / 'results.json').write_text(json.dumps({'an_earlier_law': {'law': 'an_earlier_law'}}))
     assert main(argv) == 0
     folder = out / 'aggregate2d_tracks4+6'
     for n in (4, 6):
@@ -151,7 +153,8 @@ def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
     assert policy.meta['provenance']['data_file'] == ['tracks_n4.npz', 'tracks_n6.npz']
     assert 'caveats' not in json.loads((folder / 'run' / 'summary.json').read_text())  # two sizes
     results = json.loads((out / 'results.json').read_text())
-    assert list(results) == ['aggregate2d_tracks4+6']
+    assert set(results) == {'an_earlier_law', 'aggregate2d_tracks4+6'}  # an earlier invocation's stays
+    assert [r['seed'] for r in results['aggregate2d_tracks4+6']['seeds']] == [0]
     assert results['aggregate2d_tracks4+6']['n5']['robots'] == 5
     assert len(results['aggregate2d_tracks4+6']['n5']['orders']['nn_distance']['per_rollout']['learnt']) == 2
 

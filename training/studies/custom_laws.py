@@ -28,7 +28,8 @@ by more cases or seeds.
 
 Per law under ``OUT/LAW/``: ``scenario.yaml``, ``csv/run_*.csv`` (10 robots, written by the law's
 simulator), ``tracks.npz`` (the import), ``run/`` (the training run), ``eval_n10``/``eval_n30``
-(``orders.png``, ``results.json``) and ``summary.md``; ``OUT/results.json`` gathers the goals.
+(``orders.png``, ``results.json``) and ``summary.md``; ``OUT/results.json`` gathers the goals
+of every law and case run into OUT (``seeds``: one entry per training seed).
 Goals (reported, not enforced): at 10 robots the nearest-neighbour distance within 15 % of the
 law's, polarisation and rotation order within 0.10; at 30 robots 25 % and 0.15; no more escapes
 than the law.
@@ -289,14 +290,14 @@ def run_law(
     results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
     if not results:
         return None
-    result = dict(results[0])
+    result = dict(results[0], seeds=results)  # the first seed's at the top, as before; every seed's in seeds
     if noisy:
         imp = import_against_law(law, data[0], args.trajectories, sizes[0], args.seed)
         log(
             f'{os.path.basename(folder)}: noise estimate {imp["noise_estimate"] * 1e3:.3g} mm, import against '
             f'the law: positions {imp["position_rms"] * 1e3:.3g} mm, velocities {imp["velocity_rms"] * 1e3:.3g} mm/s rms'
         )
-        result.update(noise_mm=noise_mm, rate=rate, seeds=results, **{'import': imp})
+        result.update(noise_mm=noise_mm, rate=rate, **{'import': imp})
     return result
 
 
@@ -394,7 +395,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         raise KnodeError(f'--track-robots must be at least 2 robots each, got {args.track_robots}')
     args.track_robots = sorted(set(args.track_robots))
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
-    results: Dict[str, Any] = {}
+    # an earlier invocation's laws and cases stay (this one replaces those it runs again)
+    summary = os.path.join(args.out, 'results.json')
+    results: Dict[str, Any] = _read_json(summary) if os.path.exists(summary) and not args.report else {}
     for name in args.laws:
         if args.noise_mm is None:
             r = run_law(LAWS[name], args.out, args)
@@ -409,7 +412,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                     continue
                 results[f'{name}_{noise_mm:g}mm_{rate:g}hz'] = r
                 write_json(os.path.join(args.out, 'results.json'), results)
-                cases = _noise_cases({k: v for k, v in results.items() if v['law'] == name})
+                cases = _noise_cases(
+                    {k: v for k, v in results.items() if v['law'] == name and 'noise_mm' in v}
+                )
                 if not cases:
                     continue
                 robots = args.eval_robots[0]
