@@ -174,7 +174,7 @@ def derive(
         )
     d_cr = float(pol['d_cr'])
     n_min = min(f.shape[1] for f in frames)
-    counts = np.concatenate([((pair_distances(p) <= d_cr).sum(axis=-1)).ravel() for p in pos])
+    counts = _neighbour_counts(pos, d_cr)
     q90 = float(np.quantile(counts, 0.9))
     if row_free:
         packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
@@ -293,6 +293,12 @@ def derive(
     return cfg, record
 
 
+def _neighbour_counts(pos: Sequence[np.ndarray], d_cr: float) -> np.ndarray:
+    """The number of other robots within ``d_cr`` of each robot in frames ``pos [F, n, dim]``,
+    flattened over every file, frame and robot."""
+    return np.concatenate([(pair_distances(p) <= d_cr).sum(axis=-1).ravel() for p in pos])
+
+
 def size_caveat(trajectories: Sequence[np.ndarray], spec: Scenario, d_cr: float) -> Optional[str]:
     """A sentence where the data cannot say how the law scales with the swarm's size, else None.
 
@@ -306,7 +312,7 @@ def size_caveat(trajectories: Sequence[np.ndarray], spec: Scenario, d_cr: float)
         return None
     n = sizes[0]
     pos = [f[..., spec.position] for f in _frames(trajectories)]
-    counts = np.concatenate([(pair_distances(p) <= d_cr).sum(axis=-1).ravel() for p in pos])
+    counts = _neighbour_counts(pos, d_cr)
     share = float(np.mean(counts >= n - 1))
     if share < 0.9:
         return None

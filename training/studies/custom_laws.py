@@ -403,7 +403,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             r = run_law(LAWS[name], args.out, args)
             if r is not None:
                 results[name + _tracks_tail(args.track_robots)] = r
-            write_json(os.path.join(args.out, 'results.json'), results)
+            write_json(summary, results)
             continue
         for rate in args.rate:
             for noise_mm in args.noise_mm:
@@ -411,7 +411,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                 if r is None:
                     continue
                 results[f'{name}_{noise_mm:g}mm_{rate:g}hz'] = r
-                write_json(os.path.join(args.out, 'results.json'), results)
+                write_json(summary, results)
                 cases = _noise_cases(
                     {k: v for k, v in results.items() if v['law'] == name and 'noise_mm' in v}
                 )
