@@ -81,7 +81,6 @@ CASES = [
     ('studies.gains', '--policy {tmp}/missing.pt --steps 3 --frames 1 2', 'missing.pt'),
     ('studies.custom_laws', '--out {tmp}/out --config {tmp}/missing.yaml', 'missing.yaml'),
     ('studies.custom_laws', '--out {tmp}/out --track-robots 10 1', '--track-robots'),
-    ('studies.custom_laws', '--out {tmp}/out --track-spread 0', '--track-spread'),
     ('studies.law_fit', '--law mill2d --config {tmp}/missing.yaml', 'missing.yaml'),
 ]
 

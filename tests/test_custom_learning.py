@@ -159,24 +159,6 @@ def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
     assert len(results['aggregate2d_tracks4+6']['n5']['orders']['nn_distance']['per_rollout']['learnt']) == 2
 
 
-def test_wider_track_starts_scale_the_start_positions_and_name_the_folder():
-    """--track-spread F: the same draws with positions F times as far from the centre (velocities
-    unchanged; inside 0.8 x an arena); the folder and results key say so."""
-    from types import SimpleNamespace
-
-    from training.studies.custom_laws import _tracks_tail
-    from training.studies.laws import LAWS, initial_states
-
-    law = LAWS['mill2d']
-    z1, z2 = initial_states(law, 3, 5, 4), initial_states(law, 3, 5, 4, spread=2.0)
-    assert np.allclose(z2[..., :2], 2.0 * z1[..., :2]) and np.allclose(z2[..., 2:], z1[..., 2:])
-    boxed = initial_states(LAWS['flock3d_arena'], 3, 30, 4, spread=5.0)
-    assert np.abs(boxed[..., :3]).max() <= 0.8 * 4.0
-    assert _tracks_tail(SimpleNamespace(track_robots=[10], track_spread=1.0)) == ''
-    assert _tracks_tail(SimpleNamespace(track_robots=[10], track_spread=2.0)) == '_spread2'
-    assert _tracks_tail(SimpleNamespace(track_robots=[10, 20], track_spread=1.5)) == '_tracks10+20_spread1.5'
-
-
 def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     """CSV tracks of a tiny law -> import_tracks -> train (1 epoch, train_custom.yaml) -> evaluate."""
     from training.evaluate import main as evaluate_main

@@ -91,8 +91,7 @@ def test_a_mirror_does_not_commute_so_chiral_laws_keep_their_sense(dims):
 @pytest.mark.parametrize('column', [0, 1, 12, DISTANCE_BASIS])
 def test_hand_set_weights_give_the_central_force_they_encode(column):
     """One hidden unit on one radial input as the coefficient of r_hat in the sum channel and,
-    times 0.5, in the mean channel: u_i = (sum_j + 0.5 mean_j) tanh(x(d_ij)) r_hat_ij (the mean
-    over the robot and its neighbours, each neighbour at the initial gate), where x is
+    times 0.5, in the mean channel: u_i = (sum_j + 0.5 mean_j) tanh(x(d_ij)) r_hat_ij, where x is
     log(1 + d / s) (column 0) or the Gaussian of it centred at log(1 + d_cr / s) (column - 1) / 31
     (column >= 1: contact, between, the communication radius)."""
     scenario = spec(2, 'position', 'velocity')
@@ -117,42 +116,8 @@ def test_hand_set_weights_give_the_central_force_they_encode(column):
         width = np.log1p(d_cr / s) / (DISTANCE_BASIS - 1)
         x = np.exp(-(((x - (column - 1) * width) / width) ** 2))
     pull = np.tanh(x) * r / np.where(d > 0, d, 1.0) * m
-    gate = 1.0 / (1.0 + np.exp(-4.0))  # the initial gate: every neighbour alike
-    expected = pull.sum(1) + 0.5 * gate * pull.sum(1) / (1.0 + gate * m.sum(1))
+    expected = pull.sum(1) + 0.5 * pull.sum(1) / np.maximum(m.sum(1), 1.0)
     np.testing.assert_allclose(u, expected, rtol=1e-5, atol=1e-6)
-
-
-def test_neighbours_the_gate_shuts_out_do_not_dilute_the_mean():
-    """A gate set to shut out neighbours beyond 1.5 m: the mean channel over the robot and its two
-    near neighbours is the same with three far robots added (a plain mean would be diluted 6/3),
-    and equals its hand-computed value."""
-    scenario = spec(2, 'position', 'velocity')
-    policy = make(scenario, hidden=1, k=6, d_cr=10.0, collision=False, command_limit=1e6, position_scale=1.0)
-    enc = policy.encoder
-    with torch.no_grad():
-        enc.pair.weight.zero_()
-        enc.pair.weight[0, 0] = 1.0  # h = tanh(log(1 + d))
-        enc.pair.bias.zero_()
-        enc.pair_out.weight.copy_(torch.tensor([[0.0], [0.0], [1.0], [0.0]]))  # mean channel: r_hat
-        enc.gate.weight.fill_(-200.0)  # open below h = tanh(log 2.5), shut above
-        enc.gate.bias.fill_(200.0 * np.tanh(np.log(2.5)))
-    near = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, 1.0]])
-    far = np.array([[4.0, 0.0], [0.0, -5.0], [-4.5, 3.0]])
-
-    def command(z):
-        Y, mask = neighbour_matrix(z, z, 2, 10.0, 6)
-        with torch.no_grad():
-            return policy(torch.tensor(Y, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32))[:1]
-
-    r = near[1:]
-    pull = (
-        np.tanh(np.log1p(np.linalg.norm(r, axis=1, keepdims=True)))
-        * r
-        / np.linalg.norm(r, axis=1, keepdims=True)
-    )
-    expected = pull.sum(0) / 3.0  # the robot and its two neighbours
-    np.testing.assert_allclose(command(near).numpy()[0], expected, rtol=1e-5)
-    np.testing.assert_allclose(command(np.concatenate([near, far])).numpy()[0], expected, rtol=1e-5)
 
 
 def _recipe(scenario, tracks, **overrides):

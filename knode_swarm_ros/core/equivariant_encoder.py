@@ -22,11 +22,7 @@ networks:
   ``log(1 + d)`` alone fits a force that changes fast at short range poorly), the norms and dot
   products of those vectors and their signed areas (2D) or triple product (3D);
 * one tanh layer gives the coefficients of the sum channel (grows with the neighbour count,
-  as a force does) and of the mean channel (does not: alignment, the centroid); the mean is
-  over the robot and its neighbours, each weighted by a learnt gate of its pair scalars
-  (``sum_j g_ij a_ij / (1 + sum_j g_ij)``, ``g`` in (0, 1)), so the neighbourhood it averages
-  over is the law's, learnt from the data, not whatever the communication radius holds; a
-  neighbour in
+  as a force does) and of the mean channel (does not: alignment, the centroid); a neighbour in
   the robot's own state adds nothing (its direction and velocity difference are zero, and the
   own velocity's coefficients are taken relative to its), yet the push along ``r_hat`` may stay
   finite as two robots touch, as a repulsion that is finite at contact does;
@@ -127,10 +123,6 @@ class EquivariantEncoder(nn.Module):
         self.own_velocity_mask: List[float] = own_velocity * 2
         self.pair = nn.Linear(scalars, hidden)
         self.pair_out = nn.Linear(hidden, 2 * self.vectors, bias=False)  # sum, then mean channel
-        self.gate = nn.Linear(hidden, 1)  # each neighbour's weight in the mean
-        with torch.no_grad():  # start as the plain mean over the robot and its neighbours
-            self.gate.weight.zero_()
-            self.gate.bias.fill_(4.0)
         # built only where used (hasattr is resolved when scripted: one branch per policy)
         if self.own_vectors > 0:
             self.own = nn.Sequential(
@@ -197,12 +189,11 @@ class EquivariantEncoder(nn.Module):
         own_velocity = torch.tensor(self.own_velocity_mask, dtype=Y.dtype, device=Y.device)
         a = self.pair_out(h_raw) - self.pair_out(h_same) * own_velocity * m  # [B, J, 2C]
         C = self.vectors
-        g = torch.sigmoid(self.gate(h_raw)) * m  # [B, J, 1]
-        weight = 1.0 + g.sum(1)  # [B, 1]: the robot itself counts once
+        count = torch.clamp(m.sum(1), min=1.0)  # [B, 1]
         u = (a[:, :, :C].unsqueeze(-1) * vectors).sum(dim=(1, 2))
-        u = u + ((g * a[:, :, C:]).unsqueeze(-1) * vectors).sum(dim=(1, 2)) / weight
+        u = u + (a[:, :, C:].unsqueeze(-1) * vectors).sum(dim=(1, 2)) / count
         if hasattr(self, 'own'):
-            b = self.own(torch.cat([_norm(v), (g * h).sum(1) / weight], dim=1))
+            b = self.own(torch.cat([_norm(v), h.sum(1) / count], dim=1))
             vs = _soft(v)
             if p == 2:
                 u = u + b[:, :1] * vs + b[:, 1:2] * _left(vs)

@@ -21,8 +21,6 @@ recipe's own seed keeps ``run/``).
 ``--track-robots 10 20`` tracks swarms of each size (``--trajectories`` of each, ``csv_nN/``,
 ``tracks_nN.npz``) and trains one policy on all of them, in ``OUT/LAW_tracks10+20``: a law
 whose forces depend on the swarm's size shows how only in tracks of more than one size.
-``--track-spread 2`` starts the tracks twice as wide as the law's starts (``OUT/LAW_spread2``):
-robots that begin out of each other's reach give tracks in which the neighbour count varies.
 
 A step whose output exists is skipped (the tracks once imported, a training with its
 ``training.json``, an evaluation of it), so the same command resumes a killed study or extends it
@@ -65,13 +63,10 @@ from .laws import LAWS, RECIPE, Law, initial_states, simulate
 GOALS = {10: (0.15, 0.10), 30: (0.25, 0.15)}  # robots -> (relative nn error, order parameter error)
 
 
-def write_tracks(
-    law: Law, folder: str, trajectories: int, robots: int, seed: int, spread: float = 1.0
-) -> List[str]:
-    """One long-format CSV per trajectory (t, id, x, y[, z][, vx, vy[, vz]]), from starts
-    ``spread`` times as wide as the law's; returns the paths."""
+def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: int) -> List[str]:
+    """One long-format CSV per trajectory (t, id, x, y[, z][, vx, vy[, vz]]); returns the paths."""
     spec = law.scenario
-    states = simulate(law, initial_states(law, trajectories, robots, seed, spread), law.steps)
+    states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)
     axes = 'xyz'[: spec.dimensions]
     header = ['t', 'id', *axes] + ([f'v{a}' for a in axes] if spec.velocity is not None else [])
     os.makedirs(folder, exist_ok=True)
@@ -98,7 +93,6 @@ def write_noisy_tracks(
     rate_hz: float,
     jitter_s: float = 0.0005,
     drop: float = 0.01,
-    spread: float = 1.0,
 ) -> List[str]:
     """Like :func:`write_tracks`, as a motion-capture system records the law: positions only
     (t, id, x, y[, z]) sampled at ``rate_hz``, Gaussian noise of ``noise_m`` per axis, stamps
@@ -107,8 +101,7 @@ def write_noisy_tracks(
     if spec.velocity is None:
         raise ValueError(f'{law.name}: positions only; the noisy recording needs a velocity state')
     d = spec.dimensions
-    z0 = initial_states(law, trajectories, robots, seed, spread)
-    states = simulate(law, z0, law.steps)  # [S, T+1, n, 2d]
+    states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)  # [S, T+1, n, 2d]
     times = np.arange(0.0, law.steps * spec.dt, 1.0 / rate_hz)
     rng = np.random.default_rng(seed + 7919)
     axes = 'xyz'[:d]
@@ -262,12 +255,9 @@ def _read_json(path: str) -> Dict[str, Any]:
         return json.load(fh)
 
 
-def _tracks_tail(args) -> str:
-    """The folder's (and results key's) tail for tracks of other sizes than 10 robots alone, or
-    from wider starts than the law's."""
-    sizes = args.track_robots
-    tail = '' if sizes == [10] else '_tracks' + '+'.join(map(str, sizes))
-    return tail + ('' if args.track_spread == 1.0 else f'_spread{args.track_spread:g}')
+def _tracks_tail(sizes: List[int]) -> str:
+    """The folder's (and results key's) tail for tracks of other sizes than 10 robots alone."""
+    return '' if sizes == [10] else '_tracks' + '+'.join(map(str, sizes))
 
 
 def run_law(
@@ -278,7 +268,7 @@ def run_law(
     noisy = noise_mm is not None
     folder = os.path.join(out, f'{law.name}_{noise_mm:g}mm_{rate:g}hz' if noisy else law.name)
     sizes = args.track_robots
-    folder += _tracks_tail(args)
+    folder += _tracks_tail(sizes)
     # one file per tracked swarm size: the trainer takes them together (one size-free policy)
     data = [os.path.join(folder, 'tracks.npz' if n == 10 else f'tracks_n{n}.npz') for n in sizes]
     if args.report and not all(map(os.path.exists, data)):
@@ -292,11 +282,9 @@ def run_law(
             continue
         csv_dir = os.path.join(folder, 'csv' if n == 10 else f'csv_n{n}')
         if noisy:
-            csvs = write_noisy_tracks(
-                law, csv_dir, args.trajectories, n, args.seed, noise_mm / 1000, rate, spread=args.track_spread
-            )
+            csvs = write_noisy_tracks(law, csv_dir, args.trajectories, n, args.seed, noise_mm / 1000, rate)
         else:
-            csvs = write_tracks(law, csv_dir, args.trajectories, n, args.seed, args.track_spread)
+            csvs = write_tracks(law, csv_dir, args.trajectories, n, args.seed)
         _run(['training.import_tracks', *csvs, '--scenario', scenario, '--out', path], log)
     seeds = args.train_seeds or [_recipe_seed(args.config)]
     results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
@@ -352,14 +340,6 @@ def main(argv: Optional[List[str]] = None) -> int:
         help='robots in the tracked swarm (several: tracks of each size, one training on all; '
         'the folder is then LAW_tracksN+M)',
     )
-    parser.add_argument(
-        '--track-spread',
-        type=float,
-        default=1.0,
-        metavar='F',
-        help="the tracks' starts F times as wide as the law's (held-out starts stay the law's); "
-        'the folder is then LAW_spreadF',
-    )
     parser.add_argument('--max-minutes', type=float, default=10.0, help='training.max_minutes of each run')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument(
@@ -414,8 +394,6 @@ def main(argv: Optional[List[str]] = None) -> int:
     if min(args.track_robots) < 2:
         raise KnodeError(f'--track-robots must be at least 2 robots each, got {args.track_robots}')
     args.track_robots = sorted(set(args.track_robots))
-    if not args.track_spread > 0:
-        raise KnodeError(f'--track-spread must be > 0, got {args.track_spread:g}')
     load_config(args.config)  # a bad recipe is refused (exit 2) before any law is simulated
     # an earlier invocation's laws and cases stay (this one replaces those it runs again)
     summary = os.path.join(args.out, 'results.json')
@@ -424,7 +402,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if args.noise_mm is None:
             r = run_law(LAWS[name], args.out, args)
             if r is not None:
-                results[name + _tracks_tail(args)] = r
+                results[name + _tracks_tail(args.track_robots)] = r
             write_json(summary, results)
             continue
         for rate in args.rate:

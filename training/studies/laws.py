@@ -147,16 +147,15 @@ LAWS: Dict[str, Law] = {
 }
 
 
-def initial_states(law: Law, count: int, n: int, seed: int, spread: float = 1.0) -> np.ndarray:
+def initial_states(law: Law, count: int, n: int, seed: int) -> np.ndarray:
     """``[count, n, d]`` starts: positions uniform in a disc (ball) of radius
-    ``spread x start_radius_per_sqrt_n x sqrt(n)`` (inside 0.8 x an arena), speeds
-    ``start_speed`` in uniform directions."""
+    ``start_radius_per_sqrt_n * sqrt(n)``, speeds ``start_speed`` in uniform directions."""
     spec = law.scenario
     rng = np.random.default_rng(seed)
     dim = spec.dimensions
     direction = rng.normal(size=(count, n, dim))
     direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
-    radius = spread * law.start_radius_per_sqrt_n * np.sqrt(n) * rng.random((count, n, 1)) ** (1.0 / dim)
+    radius = law.start_radius_per_sqrt_n * np.sqrt(n) * rng.random((count, n, 1)) ** (1.0 / dim)
     p = direction * radius
     if spec.arena is not None:
         p = np.clip(p, -0.8 * spec.arena, 0.8 * spec.arena)
