@@ -82,6 +82,8 @@ CASES = [
     ('studies.custom_laws', '--out {tmp}/out --config {tmp}/missing.yaml', 'missing.yaml'),
     ('studies.custom_laws', '--out {tmp}/out --track-robots 10 1', '--track-robots'),
     ('studies.law_fit', '--law mill2d --config {tmp}/missing.yaml', 'missing.yaml'),
+    ('studies.law_sizes', '--law mill2d --robots 10 1', '--robots'),
+    ('studies.law_sizes', '--law mill2d --reach -1', '--reach'),
 ]
 
 

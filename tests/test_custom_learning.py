@@ -159,6 +159,32 @@ def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
     assert len(results['aggregate2d_tracks4+6']['n5']['orders']['nn_distance']['per_rollout']['learnt']) == 2
 
 
+def test_the_law_at_several_sizes_reads_as_the_study_reads_it():
+    """law_sizes: the order parameters are the evaluation's on the same starts; the share of
+    robot-frames with every other within reach is 1 for a reach beyond the swarm and 0 for one
+    below contact; the commands stay within the law's cap (aggregate2d: 1 m/s)."""
+    from dataclasses import replace
+
+    from training.assessment.order import order_parameters
+    from training.studies.law_sizes import size_rows, size_table
+    from training.studies.laws import LAWS, initial_states, simulate
+
+    law = replace(LAWS['aggregate2d'], steps=30)
+    far, near = size_rows(law, [4, 6], 2, 5, reach=1e6), size_rows(law, [4, 6], 2, 5, reach=1e-6)
+    for row, small, n in zip(far, near, (4, 6)):
+        z = simulate(law, initial_states(law, 2, n, 5), 30)
+        orders = order_parameters(law.scenario, z, law.scenario.dt, 20)
+        assert row['robots'] == n
+        assert row['polarisation'] == pytest.approx(
+            (np.mean(orders['polarisation']), np.std(orders['polarisation']))
+        )
+        assert row['nn_distance'][0] == pytest.approx(np.mean(orders['nn_distance']))
+        assert row['all_within_reach'] == 1.0 and small['all_within_reach'] == 0.0
+        assert 0.0 < row['command_median'] <= row['command_q99'] <= 1.0 + 1e-12
+    table = size_table(far, 1e6)
+    assert table.count('\n') == 4 and '| 6 |' in table and '100 %' in table
+
+
 def test_the_whole_path_on_a_tiny_law(tmp_path, capsys):
     """CSV tracks of a tiny law -> import_tracks -> train (1 epoch, train_custom.yaml) -> evaluate."""
     from training.evaluate import main as evaluate_main
