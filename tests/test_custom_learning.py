@@ -159,6 +159,28 @@ def test_the_study_trains_one_policy_on_tracks_of_two_swarm_sizes(tmp_path):
     assert len(results['aggregate2d_tracks4+6']['n5']['orders']['nn_distance']['per_rollout']['learnt']) == 2
 
 
+def test_couzin_zones_turn_away_align_and_attract_at_a_bounded_rate():
+    """couzin2d on two robots heading +x: a neighbour inside the repulsion zone (ahead, to the
+    left) turns the robot right, one in the orientation zone heading +y turns it left, one in the
+    attraction zone behind it turns it towards it; never by more than turn_rate x dt, always at
+    the set speed. Starts carry unit headings."""
+    from training.studies.laws import LAWS, couzin2d, initial_states
+
+    def turn(offset, neighbour_heading=(1.0, 0.0)):
+        z = np.array([[[0.0, 0.0, 1.0, 0.0], [*offset, *neighbour_heading]]])
+        u = couzin2d(z)[0, 0]
+        assert np.linalg.norm(u) == pytest.approx(1.0)
+        return np.arctan2(u[1], u[0])
+
+    limit = 2.0 * 0.05
+    assert turn((0.3, 0.2)) == pytest.approx(-limit)  # away, as far as the turn rate allows
+    assert 0.0 < turn((0.0, 1.0), (0.0, 1.0)) <= limit + 1e-12  # towards the neighbour's heading
+    assert turn((-2.0, -0.5)) == pytest.approx(-limit)  # towards a robot behind, to the right
+    assert turn((5.0, 5.0)) == pytest.approx(0.0)  # out of every zone: straight on
+    h = initial_states(LAWS['couzin2d'], 3, 7, 0)[..., 2:]
+    assert np.allclose(np.linalg.norm(h, axis=-1), 1.0)
+
+
 def test_the_law_at_several_sizes_reads_as_the_study_reads_it():
     """law_sizes: the order parameters are the evaluation's on the same starts; the share of
     robot-frames with every other within reach is 1 for a reach beyond the swarm and 0 for one

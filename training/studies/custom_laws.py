@@ -1,9 +1,9 @@
-"""The generic recipe on three swarm laws of our own (:mod:`training.studies.laws`): tracks ->
+"""The generic recipe on the swarm laws of our own (:mod:`training.studies.laws`): tracks ->
 ``training.import_tracks`` -> ``training.train --config config/train_custom.yaml`` -> held-out
 starts at 10 and 30 robots, learnt against the law (docs/scenarios.md, "Show it on swarms of
 your own").
 
-    python -m training.studies.custom_laws --out runs/laws                     # all three laws
+    python -m training.studies.custom_laws --out runs/laws                     # every law
     python -m training.studies.custom_laws --laws mill2d --out runs/laws --max-minutes 5
     python -m training.studies.custom_laws --laws mill2d --out runs/noise --noise-mm 0 2 10 \
         --rate 30 120 --train-seeds 0 1 --eval-robots 10
@@ -64,11 +64,13 @@ GOALS = {10: (0.15, 0.10), 30: (0.25, 0.15)}  # robots -> (relative nn error, or
 
 
 def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: int) -> List[str]:
-    """One long-format CSV per trajectory (t, id, x, y[, z][, vx, vy[, vz]]); returns the paths."""
+    """One long-format CSV per trajectory (t, id, x, y[, z][, vx, vy[, vz] or hx, hy[, hz]]);
+    returns the paths."""
     spec = law.scenario
     states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)
     axes = 'xyz'[: spec.dimensions]
-    header = ['t', 'id', *axes] + ([f'v{a}' for a in axes] if spec.velocity is not None else [])
+    extra = 'v' if spec.velocity is not None else 'h' if spec.heading is not None else None
+    header = ['t', 'id', *axes] + ([f'{extra}{a}' for a in axes] if extra else [])
     os.makedirs(folder, exist_ok=True)
     paths = []
     for s in range(trajectories):

@@ -28,7 +28,7 @@ from training.assessment.order import order_parameters
 
 from .laws import LAWS, Law, initial_states, simulate
 
-__all__ = ['size_rows', 'main']
+__all__ = ['size_rows', 'size_table', 'main']
 
 LAST = 20  # frames the order parameters are read over, as the study's evaluation reads them
 

@@ -1,4 +1,4 @@
-"""Three swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+"""Four swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
 (``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
 swarms of your own").
 
@@ -10,6 +10,10 @@ swarms of your own").
   consensus, self-propulsion to a cruise speed and spring walls.
 * ``mill2d``: 2D D'Orsogna milling (``position_velocity`` + ``acceleration``): self-propulsion
   (alpha - beta |v|^2) v, a Morse potential, and a weak left turn that picks one sense of rotation.
+* ``couzin2d``: 2D Couzin zones at constant speed (``position_heading`` + ``velocity``): away from
+  robots within ``r_repulse``, else along the headings of those within ``r_orient`` and towards
+  those within ``r_attract``, turning at most ``turn_rate``. Added after the recipe was fixed, as
+  a law it was never tried on (docs/scenarios.md, "A law the recipe was not tried on").
 
 Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
 it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
@@ -125,6 +129,29 @@ def mill2d(
     return _clip_norm(a, 5.0)
 
 
+def couzin2d(
+    z: np.ndarray,
+    speed: float = 1.0,
+    r_repulse: float = 0.5,
+    r_orient: float = 1.2,
+    r_attract: float = 2.5,
+    turn_rate: float = 2.0,
+    dt: float = 0.05,
+) -> np.ndarray:
+    p, h = z[..., :2], z[..., 2:]
+    r, d = _offsets(p)
+    rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
+    zor, zoo = d < r_repulse, (d >= r_repulse) & (d < r_orient)
+    zoa = (d >= r_orient) & (d < r_attract)
+    away = -(rh * zor[..., None]).sum(axis=2)
+    social = h + (h[:, None, :, :] * zoo[..., None]).sum(axis=2) + (rh * zoa[..., None]).sum(axis=2)
+    want = np.where(zor.any(axis=2, keepdims=True), away, social)
+    # turn towards the wanted direction by at most turn_rate x dt per step
+    angle = np.arctan2(h[..., 0] * want[..., 1] - h[..., 1] * want[..., 0], (h * want).sum(-1))
+    angle = np.clip(angle, -turn_rate * dt, turn_rate * dt)[..., None]
+    return speed * (np.cos(angle) * h + np.sin(angle) * _left(h))
+
+
 def _spec(name: str, dims: int, state: str, command: str, arena=None) -> Scenario:
     return scenario_from_dict(
         dict(name=name, dimensions=dims, state=state, command=command, dt=0.05, arena=arena), name
@@ -144,6 +171,9 @@ LAWS: Dict[str, Law] = {
         400,
     ),
     'mill2d': Law('mill2d', _spec('mill2d', 2, 'position_velocity', 'acceleration'), mill2d, 0.6, 1.0, 400),
+    'couzin2d': Law(
+        'couzin2d', _spec('couzin2d', 2, 'position_heading', 'velocity'), couzin2d, 0.5, 1.0, 400
+    ),
 }
 
 
@@ -159,11 +189,11 @@ def initial_states(law: Law, count: int, n: int, seed: int) -> np.ndarray:
     p = direction * radius
     if spec.arena is not None:
         p = np.clip(p, -0.8 * spec.arena, 0.8 * spec.arena)
-    if spec.velocity is None:
+    if spec.velocity is None and spec.heading is None:
         return p
     heading = rng.normal(size=(count, n, dim))
     heading /= np.linalg.norm(heading, axis=-1, keepdims=True)
-    return np.concatenate([p, law.start_speed * heading], axis=-1)
+    return np.concatenate([p, (1.0 if spec.heading else law.start_speed) * heading], axis=-1)
 
 
 def simulate(law: Law, z0: np.ndarray, steps: int) -> np.ndarray:
