@@ -4,8 +4,9 @@ its file is whole (nodes/common/exit_watchdog.py, armed once in executor.run_nod
 The flake it answers: in a suite run beside a second one, the recorder wrote its file and then
 hung while exiting (rclpy / DDS teardown), ignored SIGTERM and was SIGKILLed; the launcher failed
 the run. Here the recorder runs the real ``run_node`` in a child process whose clean-up step is
-replaced by a ``pause()`` through ``ctypes.PyDLL``: native code that keeps the GIL, as rclpy's
-calls do, so neither a Python signal handler nor a Python thread can end it. The tests wait only
+replaced by a ``pause()`` (or, where the test signals it, a loop of short ``usleep()`` calls)
+through ``ctypes.PyDLL``: native code that keeps the GIL, as rclpy's calls do, so neither a
+Python signal handler nor a Python thread can end it while it waits. The tests wait only
 for polled conditions (log lines, exit) with generous deadlines; no timing is asserted.
 """
 
@@ -29,11 +30,11 @@ _HUNG_RECORDER = """
 import ctypes, sys
 from knode_swarm_ros.nodes.common import executor, exit_watchdog
 from knode_swarm_ros.nodes.recorder import node as recorder
-pause = ctypes.PyDLL(None).pause  # blocks in C with the GIL held
+libc = ctypes.PyDLL(None)  # its calls block in C with the GIL held
 def hung_clean_up(*args, **kwargs):
     print('clean-up hangs', flush=True)
-    while True:  # a signal interrupts pause(); its Python handler runs between two calls
-        pause()
+    while True:  # a signal interrupts the call; its Python handler runs between two calls
+        {hang}
 executor.{step} = hung_clean_up
 exit_watchdog.TEARDOWN_S = {deadline}
 sys.argv = ['recorder', '--ros-args', *sys.argv[1:]]
@@ -41,13 +42,19 @@ recorder.main()
 """
 
 
-def _recorder(tmp_path, step, deadline, *params):
+# pause() waits for a signal forever; a signal that lands between the print and the call is
+# taken by the handler only after the call returns, so a test that signals the hang waits in
+# bounded calls instead (usleep: also in C with the GIL held)
+PAUSE, SHORT_WAITS = 'libc.pause()', 'libc.usleep(100000)'
+
+
+def _recorder(tmp_path, step, deadline, *params, hang=PAUSE):
     log_path = tmp_path / 'recorder.log'
     with open(log_path, 'wb') as log:
         proc = start(
             [
                 '-c',
-                _HUNG_RECORDER.format(step=step, deadline=deadline),
+                _HUNG_RECORDER.format(step=step, deadline=deadline, hang=hang),
                 '-p',
                 f'robots:={ROBOTS}',
                 '-p',
@@ -123,7 +130,7 @@ def test_a_second_signal_during_a_hung_clean_up_ends_it_after_the_save(tmp_path,
     status 0 (the watchdog's deadline is pushed out of reach, so only the signal can)."""
     before = shm_snapshot()
     sim = _simulator(tmp_path, '-p', 'steps:=0', '-p', 'mode:=realtime', '-p', 'publish_rate:=20.0')
-    rec, rec_log = _recorder(tmp_path, '_teardown', 3600.0)
+    rec, rec_log = _recorder(tmp_path, '_teardown', 3600.0, hang=SHORT_WAITS)
     try:
         wait_for(rec, rec_log, f'heard all {ROBOTS} robots: ready')
         rec.send_signal(signal.SIGTERM)
