@@ -68,9 +68,8 @@ def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: in
     returns the paths."""
     spec = law.scenario
     states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)
-    axes = 'xyz'[: spec.dimensions]
-    extra = 'v' if spec.velocity is not None else 'h' if spec.heading is not None else None
-    header = ['t', 'id', *axes] + ([f'{extra}{a}' for a in axes] if extra else [])
+    layout, dims = spec.state_layout, spec.dimensions  # ('px', 'py', 'vx', 'vy'): columns x, y, vx, vy
+    header = ['t', 'id', *(name[1:] for name in layout[:dims]), *layout[dims:]]
     os.makedirs(folder, exist_ok=True)
     paths = []
     for s in range(trajectories):

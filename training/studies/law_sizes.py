@@ -24,6 +24,7 @@ import numpy as np
 
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
+from knode_swarm_ros.core.geometry import pair_distances
 from training.assessment.order import order_parameters
 
 from .laws import LAWS, Law, initial_states, simulate
@@ -51,9 +52,8 @@ def size_rows(
         u = np.linalg.norm(law.command(last), axis=-1)
         row['command_median'], row['command_q99'] = float(np.median(u)), float(np.quantile(u, 0.99))
         if reach is not None:
-            p = z[..., spec.position]
-            d = np.linalg.norm(p[..., :, None, :] - p[..., None, :, :], axis=-1)
-            row['all_within_reach'] = float(np.mean((d < reach).sum(-1) - 1 == n - 1))
+            others = (pair_distances(z[..., spec.position]) < reach).sum(-1)  # [S, T, n]
+            row['all_within_reach'] = float(np.mean(others == n - 1))
         rows.append(row)
     return rows
 

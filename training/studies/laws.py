@@ -37,6 +37,9 @@ __all__ = ['Law', 'LAWS', 'RECIPE', 'simulate', 'initial_states']
 RECIPE = os.path.normpath(os.path.join(os.path.dirname(__file__), '..', '..', 'config', 'train_custom.yaml'))
 
 
+DT = 0.05  # s: every law's step (its scenario's dt; couzin2d bounds its turn per step with it)
+
+
 @dataclass(frozen=True)
 class Law:
     """A swarm law: its scenario, its command function and the spread of its starts."""
@@ -136,7 +139,7 @@ def couzin2d(
     r_orient: float = 1.2,
     r_attract: float = 2.5,
     turn_rate: float = 2.0,
-    dt: float = 0.05,
+    dt: float = DT,
 ) -> np.ndarray:
     p, h = z[..., :2], z[..., 2:]
     r, d = _offsets(p)
@@ -154,7 +157,7 @@ def couzin2d(
 
 def _spec(name: str, dims: int, state: str, command: str, arena=None) -> Scenario:
     return scenario_from_dict(
-        dict(name=name, dimensions=dims, state=state, command=command, dt=0.05, arena=arena), name
+        dict(name=name, dimensions=dims, state=state, command=command, dt=DT, arena=arena), name
     )
 
 
@@ -193,7 +196,7 @@ def initial_states(law: Law, count: int, n: int, seed: int) -> np.ndarray:
         return p
     heading = rng.normal(size=(count, n, dim))
     heading /= np.linalg.norm(heading, axis=-1, keepdims=True)
-    return np.concatenate([p, (1.0 if spec.heading else law.start_speed) * heading], axis=-1)
+    return np.concatenate([p, (1.0 if spec.heading is not None else law.start_speed) * heading], axis=-1)
 
 
 def simulate(law: Law, z0: np.ndarray, steps: int) -> np.ndarray:
