@@ -126,3 +126,13 @@ def test_several_noise_levels_rates_and_seeds_in_one_call_resume_and_compare(tmp
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ['mill2d_0mm_30hz', 'mill2d_5mm_30hz']
     assert not (out / 'mill2d_0mm_30hz' / 'run_seed2').exists()
     assert len((out / 'mill2d_noise.md').read_text().splitlines()) == 2 + 1 + 2  # seed 0 only
+    # a recording of another tracked swarm size: its own folder, key and table; the others stay
+    table = (out / 'mill2d_noise.md').read_text()
+    sized = argv[:8] + ['--noise-mm', '0', '--rate', '30', '--eval-robots', '4', '--track-robots', '4']
+    assert custom_laws.main(sized) == 0
+    results = json.loads((out / 'results.json').read_text())
+    assert sorted(results) == ['mill2d_0mm_30hz', 'mill2d_0mm_30hz_tracks4', 'mill2d_5mm_30hz']
+    assert results['mill2d_0mm_30hz_tracks4']['track_robots'] == [4]
+    assert (out / 'mill2d_0mm_30hz_tracks4' / 'tracks_n4.npz').is_file()
+    assert (out / 'mill2d_noise.md').read_text() == table
+    assert len((out / 'mill2d_tracks4_noise.md').read_text().splitlines()) == 2 + 1 + 1

@@ -15,7 +15,8 @@ positions only, sampled at ``--rate``, Gaussian noise, jittered stamps, dropped 
 importer's smoother derives the velocities from noisy poses; the folder is then ``OUT/LAW_Nmm_RHz``,
 one per noise level and rate, and ``OUT/LAW_noise.md`` / ``OUT/LAW_noise.png`` compare them
 (:mod:`training.studies.law_noise`: the import against the law, the order parameters against the
-law and, per held-out start, against the 0-mm recording of the same rate and seed).
+law and, per held-out start, against the 0-mm recording of the same rate and seed); with
+``--track-robots`` the folders, results keys and tables carry its tail (``LAW_Nmm_RHz_tracks20``).
 ``--train-seeds`` trains once per seed on each import (``run_seedK/``, ``eval_nN_seedK/``; the
 recipe's own seed keeps ``run/``).
 ``--track-robots 10 20`` tracks swarms of each size (``--trajectories`` of each, ``csv_nN/``,
@@ -291,7 +292,8 @@ def run_law(
     results = [r for seed in seeds if (r := _train_and_evaluate(law, folder, data, seed, args, log))]
     if not results:
         return None
-    result = dict(results[0], seeds=results)  # the first seed's at the top, as before; every seed's in seeds
+    # the first seed's at the top, as before; every seed's in seeds
+    result = dict(results[0], seeds=results, track_robots=sizes)
     if noisy:
         imp = import_against_law(law, data[0], args.trajectories, sizes[0], args.seed)
         log(
@@ -411,19 +413,27 @@ def main(argv: Optional[List[str]] = None) -> int:
                 r = run_law(LAWS[name], args.out, args, noise_mm=noise_mm, rate=rate)
                 if r is None:
                     continue
-                results[f'{name}_{noise_mm:g}mm_{rate:g}hz'] = r
+                results[f'{name}_{noise_mm:g}mm_{rate:g}hz' + _tracks_tail(args.track_robots)] = r
                 write_json(summary, results)
+                # one noise table per tracked swarm size (results written before the key: 10 robots)
                 cases = _noise_cases(
-                    {k: v for k, v in results.items() if v['law'] == name and 'noise_mm' in v}
+                    {
+                        k: v
+                        for k, v in results.items()
+                        if v['law'] == name
+                        and 'noise_mm' in v
+                        and v.get('track_robots', [10]) == args.track_robots
+                    }
                 )
                 if not cases:
                     continue
                 robots = args.eval_robots[0]
-                with open(os.path.join(args.out, f'{name}_noise.md'), 'w') as fh:
+                stem = os.path.join(args.out, name + _tracks_tail(args.track_robots) + '_noise')
+                with open(stem + '.md', 'w') as fh:
                     fh.write(noise_table(cases, robots))
                 noise_figure(
                     cases,
-                    os.path.join(args.out, f'{name}_noise.png'),
+                    stem + '.png',
                     robots,
                     f'{name}: learnt from noisy recordings, {robots} robots, {args.starts} held-out starts',
                 )
