@@ -27,3 +27,13 @@ def test_recipe_fields_can_be_set(capsys):
     # values are YAML, as training.train's: a number is a number, not the string '0.5'
     _, _, out, _ = _errors(capsys, '--epochs', '0', '--set', 'policy.position_scale=0.5')
     assert 'position scale 0.5:' in out
+
+
+def test_a_constant_speed_law_is_fitted_steered(capsys):
+    # couzin2d moves at 1 m/s and turns at most 0.1 rad a step: the recipe derives both
+    assert main(['--law', 'couzin2d', '--seconds', '1e9', '--epochs', '0']) == 0
+    out = capsys.readouterr().out
+    speed, limit = map(float, re.search(r'speed ([0-9.]+), turn limit ([0-9.]+)', out).groups())
+    assert abs(speed - 1.0) < 1e-3 and abs(limit - 0.15) < 1e-3
+    _, _, out, _ = _errors(capsys, '--epochs', '0')
+    assert 'speed None, turn limit None' in out  # aggregate2d has no heading

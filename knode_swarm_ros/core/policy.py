@@ -19,6 +19,9 @@
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
+* ``speed`` / ``turn_limit`` (heading states only): the command keeps a set speed and turns the
+  own heading by at most ``turn_limit`` per step towards the network's direction
+  (:mod:`.steering`: constant-speed laws such as Vicsek's or Couzin's); unset by default.
 * saturation per axis at ``command_limit`` as the last operation (docs/DESIGN.md: real
   actuators saturate, and a zero-order hold of an unbounded repulsion is unstable).
 
@@ -43,6 +46,7 @@ from .knowledge import (
 )
 from .scenarios import get_scenario
 from .set_encoder import NeighbourSetEncoder
+from .steering import FREE_SPEED, FREE_TURN, steer
 
 __all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'ROW_FREE_ENCODERS', 'half_turns']
 
@@ -94,10 +98,13 @@ class PolicyConfig:
     wall_d0: float = 1.0
     position_scale: float = 1.0
     velocity_scale: float = 1.0
+    speed: Optional[float] = None
+    turn_limit: Optional[float] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        get_scenario(self.scenario)  # raises on an unknown name
+        spec = get_scenario(self.scenario)  # raises on an unknown name
+        steered = self.speed is not None or self.turn_limit is not None
         checks = {
             'k': self.k >= 1,
             'd_cr': self.d_cr > 0,
@@ -116,10 +123,23 @@ class PolicyConfig:
             'wall_a': self.wall_a >= 0,
             'position_scale': self.position_scale > 0,
             'velocity_scale': self.velocity_scale > 0,
+            'speed': self.speed is None or _positive(self.speed),
+            'turn_limit': self.turn_limit is None
+            or (_positive(self.turn_limit) and self.turn_limit <= FREE_TURN),
         }
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f'policy config: invalid {name} = {getattr(self, name)!r}')
+        if steered and spec.heading is None:
+            name = 'speed' if self.speed is not None else 'turn_limit'
+            raise ValueError(
+                f'policy config: invalid {name} = {getattr(self, name)!r}: a set speed and turn limit '
+                f'need a heading in the state (position_heading), not {spec.state}'
+            )
+
+
+def _positive(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
 
 
 # The paper's settings per scenario (flock2d: lambda = a + phi^2 for collisions;
@@ -206,6 +226,9 @@ class KNODEPolicy(nn.Module):
         self.state_signs: List[float] = [s for t in turns for s in t * (spec.state_dim // spec.position_dim)]
         self.collision_gain = AvoidanceGain(config.collision_a, config.collision_phi)
         self.wall_gain = AvoidanceGain(config.wall_a, config.wall_phi)
+        self.steered = config.speed is not None or config.turn_limit is not None
+        self.speed = float(config.speed) if config.speed is not None else FREE_SPEED
+        self.turn_limit = float(config.turn_limit) if config.turn_limit is not None else FREE_TURN
 
     def scale_inputs(self, Y: Tensor) -> Tensor:
         if self.scaled:
@@ -277,6 +300,8 @@ class KNODEPolicy(nn.Module):
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
         """Command ``[B, m]`` for neighbour matrices ``Y [B, k, d]`` with ``mask [B, k]``."""
         u = self.network(Y, mask) + self.knowledge(Y, mask)
+        if self.steered:
+            u = steer(u, Y[:, 0, self.position_dim :], self.speed, self.turn_limit)
         return torch.clamp(u, -self.command_limit, self.command_limit)
 
     def metadata(self, dt: Optional[float] = None) -> Dict[str, Any]:

@@ -30,6 +30,10 @@ derived, in order (later rules use earlier values, derived or given):
   ``policy.encoder: equivariant`` (distances enter as log(1 + d / scale)) the median
   nearest-neighbour distance;
   ``policy.velocity_scale``: the RMS of the velocity entries (1 for headings or no velocity);
+* ``policy.speed``, ``policy.turn_limit`` (heading states only, :mod:`knode_swarm_ros.core.steering`):
+  where the data move at a constant speed (the 1st to 99th percentile of the implied speeds
+  within 5 % of their median) the median speed, and 1.5 x the largest turn between the own
+  heading and the next command (unbounded if that reaches pi); else unset (the command is free);
 * ``noise.variance``: (2 % of the smaller input scale)^2;
 * ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
 * ``policy.symmetric``: the network averaged over the half turns about the axes: without an arena
@@ -64,12 +68,17 @@ DERIVED_FIELDS = (
     'policy.wall_phi',
     'policy.position_scale',
     'policy.velocity_scale',
+    'policy.speed',
+    'policy.turn_limit',
     'noise.variance',
     'augment.rotate',
     'policy.symmetric',
 )
 # A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
 DENSER = 4
+# Speeds whose 1st to 99th percentiles lie within this share of their median are a constant speed
+# (resampling a curved track shortens each step by less than 0.1 % at the turns of such laws).
+CONSTANT_SPEED = 0.05
 # Frames used for the statistics: enough for stable quantiles, cheap on long recordings.
 MAX_FRAMES = 4000
 
@@ -257,6 +266,7 @@ def derive(
         )
     else:
         put('policy.velocity_scale', 1.0, f'1: the state has no velocity ({spec.state})')
+    _derive_steering(put, trajectories, spec, dt)
     scales = [float(pol['position_scale'])]
     if spec.velocity is not None:
         scales.append(float(pol['velocity_scale']))
@@ -291,6 +301,50 @@ def derive(
         why += averaged
     put('policy.symmetric', turn, why)
     return cfg, record
+
+
+def _derive_steering(put, trajectories: Sequence[np.ndarray], spec: Scenario, dt: float) -> None:
+    """``policy.speed`` and ``policy.turn_limit`` (module docstring) through ``put``."""
+    if spec.heading is None:
+        for dotted in ('policy.speed', 'policy.turn_limit'):
+            put(dotted, None, f'unset: the state has no heading ({spec.state})')
+        return
+    speeds, turns = [], []
+    for states in trajectories:
+        z = np.asarray(states, dtype=np.float64)
+        u = np.diff(z[..., spec.position], axis=1) / dt  # [N, T-1, n, p]
+        h = z[:, :-1][..., spec.heading]
+        speed = np.linalg.norm(u, axis=-1)
+        moving = speed > 0
+        cos = (u * h).sum(-1)[moving] / (speed[moving] * np.linalg.norm(h, axis=-1)[moving])
+        speeds.append(speed.ravel())
+        turns.append(np.arccos(np.clip(cos, -1.0, 1.0)))
+    speed, turn = np.concatenate(speeds), np.concatenate(turns)
+    if speed.size == 0 or turn.size == 0:
+        for dotted in ('policy.speed', 'policy.turn_limit'):
+            put(dotted, None, 'unset: the data have no step between two frames')
+        return
+    median = float(np.median(speed))
+    lo, hi = (float(q) for q in np.quantile(speed, [0.01, 0.99]))
+    spread = f'1st to 99th percentile of the implied speeds {lo:.4g} to {hi:.4g}, median {median:.4g}'
+    if median <= 0 or max(hi - median, median - lo) > CONSTANT_SPEED * median:
+        put('policy.speed', None, f'unset: the speeds vary ({spread}): the command is free')
+        put('policy.turn_limit', None, 'unset: a turn limit goes with a set speed')
+        return
+    put(
+        'policy.speed',
+        round(median, 6),
+        f'the median speed: the data move at a constant speed ({spread}, within '
+        f'{CONSTANT_SPEED:.0%}): the network steers the heading (core.steering)',
+    )
+    largest = float(turn.max())
+    limit = 1.5 * largest
+    put(
+        'policy.turn_limit',
+        round(limit, 6) if limit < math.pi else None,
+        f'1.5 x the largest turn from the own heading to the next command in the data ({largest:.4g} rad)'
+        + ('' if limit < math.pi else ': that reaches pi, so unset (unbounded)'),
+    )
 
 
 def _neighbour_counts(pos: Sequence[np.ndarray], d_cr: float) -> np.ndarray:

@@ -1,5 +1,6 @@
-"""Can a policy network represent a swarm law at all? The network part of a recipe policy,
-regressed directly on the law's own commands (no rollout, no knowledge terms, no noise), with
+"""Can a policy network represent a swarm law at all? A recipe policy without its knowledge terms
+(the network, steered where the recipe derives a set speed, saturated), regressed directly on
+the law's own commands (no rollout, no noise), with
 its error by nearest-neighbour distance (docs/scenarios.md, "Can the network represent the law").
 
     python -m training.studies.law_fit --law mill2d --seconds 120
@@ -75,18 +76,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     t0, epochs = time.perf_counter(), 0
     while time.perf_counter() - t0 < args.seconds and (args.epochs is None or epochs < args.epochs):
         for idx in torch.randperm(len(Y)).split(int(cfg['training']['batch_size'])):
-            loss = ((policy.network(Y[idx], mask[idx]) - U[idx]) ** 2).sum(-1).mean()
+            loss = ((policy(Y[idx], mask[idx]) - U[idx]) ** 2).sum(-1).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
         epochs += 1
     with torch.no_grad():
-        err = (policy.network(Yt, maskt) - Ut).norm(dim=-1).numpy()
+        err = (policy(Yt, maskt) - Ut).norm(dim=-1).numpy()
     nn = nearest_neighbour_distance(z[10:, ::4, ..., spec.position]).reshape(-1)
     pol = cfg['policy']
     print(
-        f'{args.law}, encoder {pol["encoder"]}, symmetric {pol["symmetric"]}, position scale '
-        f'{pol["position_scale"]:.4g}: {epochs} epochs in {time.perf_counter() - t0:.0f} s'
+        f'{args.law}, encoder {pol["encoder"]}, symmetric {pol["symmetric"]}, speed {pol["speed"]}, '
+        f'turn limit {pol["turn_limit"]}, position scale {pol["position_scale"]:.4g}: {epochs} epochs in '
+        f'{time.perf_counter() - t0:.0f} s'
     )
     print(
         f'held-out commands: RMS {float(Ut.norm(dim=-1).pow(2).mean().sqrt()):.3f}, '
