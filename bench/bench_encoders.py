@@ -12,7 +12,9 @@ recipe derives for the equivariant encoder only with an arena) is timed in the s
 * training step: forward and backward of 2048 samples with 10 rows (the trainer builds only
   as many rows as the training swarm has), median over ``--repeats // 10`` steps, in ms.
 
-Every figure is printed with its ratio to flat in the same scenario. One thread, as the agents
+Every figure is printed with its ratio to flat in the same scenario. A 2D heading scenario
+times constant-speed steering (``policy.speed``, ``policy.turn_limit``: core/steering.py) on
+the recipe's equivariant encoder, against the same encoder unsteered. One thread, as the agents
 and the recipe (``training.threads: 1``) run.
 """
 
@@ -86,9 +88,13 @@ def scripted(policy: KNODEPolicy):
     return torch.jit.load(buffer)
 
 
-def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int):
+HEADINGS = scenario(2, 'position_heading', 'velocity', None)
+STEERING = {'speed': 1.0, 'turn_limit': 0.15}
+
+
+def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int, **steering):
     torch.manual_seed(0)
-    policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric))
+    policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric, **steering))
     d = policy.state_dim
     module = scripted(policy)
     out = {}
@@ -97,7 +103,9 @@ def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int):
             Y, mask = torch.randn(rows, k, d), torch.ones(rows, k)
             out[f'command, {rows} robot(s) (us)'] = 1e6 * median_seconds(lambda: module(Y, mask), repeats)
     # training: the trainer's k is the training swarm's size (10 rows), k = 10 for both encoders
-    train = KNODEPolicy(PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric)).train()
+    train = KNODEPolicy(
+        PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric, **steering)
+    ).train()
     Y, mask = torch.randn(2048, 10, d), torch.ones(2048, 10)
     target = torch.randn(2048, train.command_dim)
 
@@ -122,14 +130,30 @@ def main(argv=None) -> None:
     print(machine())
     for name, ref in SCENARIOS.items():
         print(f'\n{name} (k = {args.k} at run time, 10 in training)')
-        rows = {kind: measure(ref, *kind, args.k, args.repeats) for kind in KINDS}
-        base = rows[('flat', False)]
-        print('| network | ' + ' | '.join(base) + ' |')
-        print('|---' * (len(base) + 1) + '|')
-        for (encoder, symmetric), figures in rows.items():
-            label = encoder + (' + symmetric' if symmetric else '')
-            cells = [f'{v:.1f} ({v / base[key]:.2f}x)' for key, v in figures.items()]
-            print(f'| {label} | ' + ' | '.join(cells) + ' |')
+        rows = {
+            encoder + (' + symmetric' if symmetric else ''): measure(
+                ref, encoder, symmetric, args.k, args.repeats
+            )
+            for encoder, symmetric in KINDS
+        }
+        table(rows, 'flat')
+    print(f'\n2D position_heading, velocity (k = {args.k} at run time, 10 in training)')
+    rows = {
+        'equivariant': measure(HEADINGS, 'equivariant', False, args.k, args.repeats),
+        'equivariant + steering': measure(HEADINGS, 'equivariant', False, args.k, args.repeats, **STEERING),
+    }
+    table(rows, 'equivariant')
+
+
+def table(rows, base_label: str) -> None:
+    """Print ``rows`` (label -> figures) as a markdown table, each figure with its ratio to the
+    row ``base_label``'s."""
+    base = rows[base_label]
+    print('| network | ' + ' | '.join(base) + ' |')
+    print('|---' * (len(base) + 1) + '|')
+    for label, figures in rows.items():
+        cells = [f'{v:.1f} ({v / base[key]:.2f}x)' for key, v in figures.items()]
+        print(f'| {label} | ' + ' | '.join(cells) + ' |')
 
 
 if __name__ == '__main__':

@@ -181,6 +181,26 @@ def test_couzin_zones_turn_away_align_and_attract_at_a_bounded_rate():
     assert np.allclose(np.linalg.norm(h, axis=-1), 1.0)
 
 
+def test_starlings_heed_their_nearest_whatever_the_distance_and_relax_their_heading():
+    """starlings3d, a robot heading +x: a single other robot 100 m away to the +y side (one of its
+    k nearest, however far) turns it towards +y; with k = 1 and a second robot nearer at -y, the
+    far one is ignored (rank, not range); the speed is set and a step turns by less than
+    atan(blend / (1 - blend)), a relaxation towards the wanted direction."""
+    from training.studies.laws import starlings3d
+
+    def heading_after(others, k=6):
+        z = np.array([[[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]] + [[*o, 1.0, 0.0, 0.0] for o in others]])
+        u = starlings3d(z, k=k)[0, 0]
+        assert np.linalg.norm(u) == pytest.approx(1.0)
+        return u
+
+    far = heading_after([(0.0, 100.0, 0.0)])
+    assert far[1] > 0.0 and abs(far[2]) < 1e-12
+    ranked = heading_after([(0.0, 100.0, 0.0), (0.0, -3.0, 0.0)], k=1)
+    assert ranked[1] < 0.0  # towards the nearer one only
+    assert np.arctan2(abs(far[1]), far[0]) <= np.arctan(0.1 / 0.9) + 1e-12
+
+
 def test_the_law_at_several_sizes_reads_as_the_study_reads_it():
     """law_sizes: the order parameters are the evaluation's on the same starts; the share of
     robot-frames with every other within reach is 1 for a reach beyond the swarm and 0 for one

@@ -314,9 +314,9 @@ def _derive_steering(put, trajectories: Sequence[np.ndarray], spec: Scenario, dt
         z = np.asarray(states, dtype=np.float64)
         u = np.diff(z[..., spec.position], axis=1) / dt  # [N, T-1, n, p]
         h = z[:, :-1][..., spec.heading]
-        speed = np.linalg.norm(u, axis=-1)
-        moving = speed > 0
-        cos = (u * h).sum(-1)[moving] / (speed[moving] * np.linalg.norm(h, axis=-1)[moving])
+        speed, length = np.linalg.norm(u, axis=-1), np.linalg.norm(h, axis=-1)
+        both = (speed > 0) & (length > 0)  # a turn needs a heading and a step
+        cos = (u * h).sum(-1)[both] / (speed[both] * length[both])
         speeds.append(speed.ravel())
         turns.append(np.arccos(np.clip(cos, -1.0, 1.0)))
     speed, turn = np.concatenate(speeds), np.concatenate(turns)

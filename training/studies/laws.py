@@ -1,4 +1,4 @@
-"""Four swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+"""Five swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
 (``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
 swarms of your own").
 
@@ -14,6 +14,11 @@ swarms of your own").
   robots within ``r_repulse``, else along the headings of those within ``r_orient`` and towards
   those within ``r_attract``, turning at most ``turn_rate``. Added after the recipe was fixed, as
   a law it was never tried on (docs/scenarios.md, "A law the recipe was not tried on").
+* ``starlings3d``: 3D, constant speed (``position_heading`` + ``velocity``), topological: each
+  robot heeds its ``k`` nearest others whatever their distance (as starlings do), aligning with
+  their headings, moving towards their centroid and away from those closer than ``r_repulse``;
+  its heading relaxes towards that direction (a share ``blend`` per step, no hard turn limit).
+  Added after constant-speed steering was built, as a law neither was tried on.
 
 Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
 it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
@@ -155,6 +160,31 @@ def couzin2d(
     return speed * (np.cos(angle) * h + np.sin(angle) * _left(h))
 
 
+def starlings3d(
+    z: np.ndarray,
+    speed: float = 1.0,
+    k: int = 6,
+    r_repulse: float = 0.5,
+    cohesion: float = 0.4,
+    blend: float = 0.1,
+) -> np.ndarray:
+    p, h = z[..., :3], z[..., 3:]
+    r, d = _offsets(p)
+    nearest = np.argsort(d, axis=2)[:, :, : min(k, p.shape[1] - 1)]  # [S, n, k]: rank, not range
+    heeded = np.zeros(d.shape, dtype=bool)
+    np.put_along_axis(heeded, nearest, True, axis=2)
+    count = heeded.sum(axis=2, keepdims=True)
+    align = (h[:, None, :, :] * heeded[..., None]).sum(axis=2) / count
+    centre = (r * heeded[..., None]).sum(axis=2) / count
+    close = heeded & (d < r_repulse)
+    away = -(r / np.where(close, d, 1.0)[..., None] * close[..., None]).sum(axis=2)
+    want = align + cohesion * centre + 2.0 * away
+    want = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 1e-9)
+    new = (1.0 - blend) * h + blend * want
+    norm = np.linalg.norm(new, axis=-1, keepdims=True)
+    return speed * np.where(norm > 1e-9, new / np.maximum(norm, 1e-9), h)
+
+
 def _spec(name: str, dims: int, state: str, command: str, arena=None) -> Scenario:
     return scenario_from_dict(
         dict(name=name, dimensions=dims, state=state, command=command, dt=DT, arena=arena), name
@@ -176,6 +206,9 @@ LAWS: Dict[str, Law] = {
     'mill2d': Law('mill2d', _spec('mill2d', 2, 'position_velocity', 'acceleration'), mill2d, 0.6, 1.0, 400),
     'couzin2d': Law(
         'couzin2d', _spec('couzin2d', 2, 'position_heading', 'velocity'), couzin2d, 0.5, 1.0, 400
+    ),
+    'starlings3d': Law(
+        'starlings3d', _spec('starlings3d', 3, 'position_heading', 'velocity'), starlings3d, 0.5, 1.0, 400
     ),
 }
 
