@@ -52,7 +52,7 @@ def steer(w: Tensor, heading: Tensor, speed: float, turn_limit: float) -> Tensor
     if speed > 0.0:
         w = w + speed * h
     direction = _unit(w, h)
-    if turn_limit < 3.141592653589793:
+    if turn_limit < 3.141592653589793:  # FREE_TURN: TorchScript cannot read module globals
         along = (direction * h).sum(-1, keepdim=True)
         side = direction - along * h
         across = torch.sqrt((side * side).sum(-1, keepdim=True) + 1e-24)

@@ -104,14 +104,16 @@ def _frames(trajectories: Sequence[np.ndarray]) -> List[np.ndarray]:
     return out
 
 
+def _rates(trajectories: Sequence[np.ndarray], block: slice, dt: float) -> List[np.ndarray]:
+    """The change per second of the state entries ``block`` between consecutive frames, one
+    ``[N, T-1, n, len(block)]`` array per file."""
+    return [np.diff(np.asarray(states, dtype=np.float64)[..., block], axis=1) / dt for states in trajectories]
+
+
 def _implied_commands(trajectories: Sequence[np.ndarray], spec: Scenario, dt: float) -> np.ndarray:
     """Largest axis of the command a zero-order hold needs between consecutive frames ``[M]``."""
-    parts = []
-    for states in trajectories:
-        block = spec.velocity if spec.command == 'acceleration' else spec.position
-        u = np.diff(np.asarray(states, dtype=np.float64)[..., block], axis=1) / dt
-        parts.append(np.abs(u).max(axis=-1).ravel())
-    return np.concatenate(parts)
+    block = spec.velocity if spec.command == 'acceleration' else spec.position
+    return np.concatenate([np.abs(u).max(axis=-1).ravel() for u in _rates(trajectories, block, dt)])
 
 
 def lattice_neighbours(dimensions: int, radius: float) -> int:
@@ -310,10 +312,8 @@ def _derive_steering(put, trajectories: Sequence[np.ndarray], spec: Scenario, dt
             put(dotted, None, f'unset: the state has no heading ({spec.state})')
         return
     speeds, turns = [], []
-    for states in trajectories:
-        z = np.asarray(states, dtype=np.float64)
-        u = np.diff(z[..., spec.position], axis=1) / dt  # [N, T-1, n, p]
-        h = z[:, :-1][..., spec.heading]
+    for states, u in zip(trajectories, _rates(trajectories, spec.position, dt)):
+        h = np.asarray(states, dtype=np.float64)[:, :-1][..., spec.heading]
         speed, length = np.linalg.norm(u, axis=-1), np.linalg.norm(h, axis=-1)
         both = (speed > 0) & (length > 0)  # a turn needs a heading and a step
         cos = (u * h).sum(-1)[both] / (speed[both] * length[both])
@@ -396,8 +396,5 @@ def _velocity_entries(frames, trajectories, spec: Scenario, dt: float) -> np.nda
     """Velocity components ``[...]``: the state's, else differences of positions."""
     if spec.velocity is not None:
         return np.concatenate([f[..., spec.velocity].ravel() for f in frames])
-    parts = [
-        np.diff(np.asarray(s, dtype=np.float64)[..., spec.position], axis=1).ravel() / dt
-        for s in trajectories
-    ]
+    parts = [u.ravel() for u in _rates(trajectories, spec.position, dt)]
     return np.concatenate(parts) if parts else np.zeros(0)
