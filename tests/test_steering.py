@@ -203,6 +203,7 @@ def test_steered_files_record_the_fields_and_the_onnx_twin_agrees(tmp_path, enco
         ('flock2d', {'turn_limit': 0.1}, 'policy.turn_limit'),
         ('boids3d', {'speed': -1.0}, 'policy.speed'),
         ('boids3d', {'speed': True}, 'policy.speed'),
+        ('boids3d', {'speed': float('inf')}, 'policy.speed'),
         ('boids3d', {'turn_limit': 0.0}, 'policy.turn_limit'),
         ('boids3d', {'turn_limit': 4.0}, 'policy.turn_limit'),
         ('boids3d', {'turn_limit': 'fast'}, 'policy.turn_limit'),

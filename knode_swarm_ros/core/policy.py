@@ -44,7 +44,7 @@ from .knowledge import (
     continuous_wall_avoidance,
     wall_avoidance,
 )
-from .scenarios import get_scenario
+from .scenarios import _is_number, get_scenario
 from .set_encoder import NeighbourSetEncoder
 from .steering import FREE_SPEED, FREE_TURN, steer
 
@@ -123,9 +123,9 @@ class PolicyConfig:
             'wall_a': self.wall_a >= 0,
             'position_scale': self.position_scale > 0,
             'velocity_scale': self.velocity_scale > 0,
-            'speed': self.speed is None or _positive(self.speed),
+            'speed': self.speed is None or (_is_number(self.speed) and self.speed > 0),
             'turn_limit': self.turn_limit is None
-            or (_positive(self.turn_limit) and self.turn_limit <= FREE_TURN),
+            or (_is_number(self.turn_limit) and 0 < self.turn_limit <= FREE_TURN),
         }
         for name, ok in checks.items():
             if not ok:
@@ -136,10 +136,6 @@ class PolicyConfig:
                 f'policy config: invalid {name} = {getattr(self, name)!r}: a set speed and turn limit '
                 f'need a heading in the state (position_heading), not {spec.state}'
             )
-
-
-def _positive(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
 
 
 # The paper's settings per scenario (flock2d: lambda = a + phi^2 for collisions;
