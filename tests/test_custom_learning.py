@@ -201,6 +201,51 @@ def test_starlings_heed_their_nearest_whatever_the_distance_and_relax_their_head
     assert np.arctan2(abs(far[1]), far[0]) <= np.arctan(0.1 / 0.9) + 1e-12
 
 
+def test_tank_school_turns_off_a_wall_along_it_and_keeps_its_speed():
+    """tank2d (arena half width 3 m, walls felt within 1.2 m): a lone robot in the middle heading
+    +x goes straight on; one 0.3 m from the +x wall heading at it turns left (+y: along the wall,
+    anticlockwise about the tank), by the most a step allows; one heading -y along that wall
+    turns right, off the wall (towards -x); the speed is always the set 1 m/s."""
+    from training.studies.laws import tank2d
+
+    def turn(position, heading):
+        z = np.array([[[*position, *heading], [0.0, 100.0, 1.0, 0.0]]])  # the other out of reach
+        u = tank2d(z)[0, 0]
+        assert np.linalg.norm(u) == pytest.approx(1.0)
+        return np.arctan2(heading[0] * u[1] - heading[1] * u[0], heading[0] * u[0] + heading[1] * u[1])
+
+    most = 3.0 * 0.05
+    assert turn((0.0, 0.0), (1.0, 0.0)) == pytest.approx(0.0)
+    assert turn((2.7, 0.0), (1.0, 0.0)) == pytest.approx(most)  # left, as far as a step allows
+    assert turn((2.7, 0.0), (0.0, -1.0)) == pytest.approx(-most)  # heading -y: right is -x, off the wall
+
+
+def test_drones_spring_to_their_spacing_swirl_and_stay_off_the_walls():
+    """drones3d_arena: two drones 0.5 m apart along x push apart, 1.0 m apart pull together
+    (spacing 0.7 m), beyond reach (1.6 m) nothing; the swirl moves each drone to the left of
+    its offset to the neighbours' centroid (about the vertical, anticlockwise); a lone drone
+    0.2 m from the +z wall descends; every command within 0.6 m/s."""
+    from training.studies.laws import drones3d_arena
+
+    def command(*positions):
+        return drones3d_arena(np.array([positions], dtype=float))[0]
+
+    close, apart, far = (
+        command((0, 0, 0), (0.5, 0, 0)),
+        command((0, 0, 0), (1.0, 0, 0)),
+        command((0, 0, 0), (2, 0, 0)),
+    )
+    assert close[0, 0] < 0.0 < close[1, 0]  # away from each other
+    assert apart[0, 0] > 0.0 > apart[1, 0]  # towards each other
+    assert np.allclose(far, 0.0)
+    assert apart[0, 1] > 0.0 > apart[1, 1]  # the one at x = 0 sees its centroid at +x: left is +y
+    assert np.allclose(close[:, 2], 0.0)
+    top = command((0, 0, 2.3), (0, 0, -1.0))  # the other beyond reach
+    assert top[0, 2] < 0.0 and np.allclose(top[0, :2], 0.0)
+    crowd = command(*[(0.05 * i, 0, 0) for i in range(8)])
+    assert np.all(np.linalg.norm(crowd, axis=-1) <= 0.6 + 1e-12)
+
+
 def test_the_law_at_several_sizes_reads_as_the_study_reads_it():
     """law_sizes: the order parameters are the evaluation's on the same starts; the share of
     robot-frames with every other within reach is 1 for a reach beyond the swarm and 0 for one

@@ -1,4 +1,4 @@
-"""Five swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+"""Seven swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
 (``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
 swarms of your own").
 
@@ -19,6 +19,14 @@ swarms of your own").
   their headings, moving towards their centroid and away from those closer than ``r_repulse``;
   its heading relaxes towards that direction (a share ``blend`` per step, no hard turn limit).
   Added after constant-speed steering was built, as a law neither was tried on.
+* ``tank2d``: fish in a tank: 2D at constant speed in an arena (``position_heading`` +
+  ``velocity``, half width 3 m): zones as couzin2d's but averaged over the neighbours, and near a
+  wall a turn away from it and along it, so that the school circles the tank.
+* ``drones3d_arena``: drones with velocity set-points in a room (``position`` + ``velocity``, 3D,
+  half width 2.5 m): summed springs to a spacing within reach, a swirl about the vertical through
+  the neighbours' centroid, walls that push back, speed capped.
+  Both added with the recipe fixed, as the two scenario kinds no law had covered (a heading in an
+  arena; first order in 3D and in an arena).
 
 Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
 it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
@@ -112,7 +120,7 @@ def flock3d_arena(
     )
     speed2 = (v**2).sum(-1, keepdims=True)
     a += 0.5 * (v0**2 - speed2) * v
-    a += 6.0 * (np.maximum(0.0, -w + wall_range - p) - np.maximum(0.0, p - (w - wall_range)))
+    a += 6.0 * _walls_depth(p, w, wall_range)
     return _clip_norm(a, 6.0)
 
 
@@ -154,10 +162,71 @@ def couzin2d(
     away = -(rh * zor[..., None]).sum(axis=2)
     social = h + (h[:, None, :, :] * zoo[..., None]).sum(axis=2) + (rh * zoa[..., None]).sum(axis=2)
     want = np.where(zor.any(axis=2, keepdims=True), away, social)
-    # turn towards the wanted direction by at most turn_rate x dt per step
+    return speed * _turn_towards(h, want, turn_rate * dt)
+
+
+def _turn_towards(h: np.ndarray, want: np.ndarray, most: float) -> np.ndarray:
+    """2D unit headings ``h`` turned towards ``want`` by at most ``most`` radians."""
     angle = np.arctan2(h[..., 0] * want[..., 1] - h[..., 1] * want[..., 0], (h * want).sum(-1))
-    angle = np.clip(angle, -turn_rate * dt, turn_rate * dt)[..., None]
-    return speed * (np.cos(angle) * h + np.sin(angle) * _left(h))
+    angle = np.clip(angle, -most, most)[..., None]
+    return np.cos(angle) * h + np.sin(angle) * _left(h)
+
+
+def _walls_depth(p: np.ndarray, w: float, wall_range: float) -> np.ndarray:
+    """How deep ``p`` is within ``wall_range`` of the faces of the box [-w, w]^dim, per axis,
+    signed away from the wall (0 farther than that)."""
+    return np.maximum(0.0, -w + wall_range - p) - np.maximum(0.0, p - (w - wall_range))
+
+
+def tank2d(
+    z: np.ndarray,
+    speed: float = 1.0,
+    w: float = 3.0,
+    r_repulse: float = 0.4,
+    r_orient: float = 0.7,
+    r_attract: float = 3.0,
+    wall_range: float = 1.2,
+    turn_rate: float = 3.0,
+    dt: float = DT,
+) -> np.ndarray:
+    p, h = z[..., :2], z[..., 2:]
+    r, d = _offsets(p)
+    rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
+    zor, zoo = d < r_repulse, (d >= r_repulse) & (d < r_orient)
+    zoa = (d >= r_orient) & (d < r_attract)
+    count = np.maximum((zoo | zoa).sum(axis=2, keepdims=True), 1)
+    # the mean over the zones (a fish heeds its neighbours' directions, not their number)
+    social = h + ((h[:, None, :, :] * zoo[..., None]).sum(axis=2) + (rh * zoa[..., None]).sum(axis=2)) / count
+    want = np.where(zor.any(axis=2, keepdims=True), -(rh * zor[..., None]).sum(axis=2), social)
+    unit = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 1e-9)
+    push = _walls_depth(p, w, wall_range) / wall_range  # 0 to 1 within wall_range
+    # near a wall a robot turns away from it and along it, to its left: the school circles
+    # anticlockwise
+    want = unit + 6.0 * (push - _left(push))
+    return speed * _turn_towards(h, want, turn_rate * dt)
+
+
+def drones3d_arena(
+    z: np.ndarray,
+    w: float = 2.5,
+    R: float = 1.6,
+    spacing: float = 0.7,
+    swirl: float = 0.5,
+    wall_range: float = 0.5,
+    v_max: float = 0.6,
+) -> np.ndarray:
+    p = z[..., :3]
+    r, d = _offsets(p)
+    near = d < R
+    dn = np.where(near, d, 1.0)
+    # springs to the spacing, summed (each neighbour pulls or pushes on its own)
+    pair = np.where(near, 0.8 * (1.0 - (spacing / dn) ** 2), 0.0)
+    u = (pair[..., None] * r / dn[..., None]).sum(axis=2)
+    # a swirl about the vertical through the neighbours' centroid: the swarm turns as one
+    centroid = (r * near[..., None]).sum(axis=2) / np.maximum(near.sum(axis=2, keepdims=True), 1)
+    u[..., :2] += swirl * _left(centroid[..., :2])
+    u += 1.5 / wall_range * _walls_depth(p, w, wall_range)
+    return _clip_norm(u, v_max)
 
 
 def starlings3d(
@@ -209,6 +278,22 @@ LAWS: Dict[str, Law] = {
     ),
     'starlings3d': Law(
         'starlings3d', _spec('starlings3d', 3, 'position_heading', 'velocity'), starlings3d, 0.5, 1.0, 400
+    ),
+    'tank2d': Law(
+        'tank2d',
+        _spec('tank2d', 2, 'position_heading', 'velocity', {'half_width': 3.0}),
+        tank2d,
+        0.5,
+        1.0,
+        400,
+    ),
+    'drones3d_arena': Law(
+        'drones3d_arena',
+        _spec('drones3d_arena', 3, 'position', 'velocity', {'half_width': 2.5}),
+        drones3d_arena,
+        0.4,
+        0.0,
+        400,
     ),
 }
 
