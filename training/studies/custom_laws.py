@@ -100,10 +100,8 @@ def write_noisy_tracks(
     (t, id, x, y[, z]) sampled at ``rate_hz``, Gaussian noise of ``noise_m`` per axis, stamps
     jittered by ``jitter_s`` (std) and a fraction ``drop`` of the samples missing."""
     spec = law.scenario
-    if spec.velocity is None:
-        raise ValueError(f'{law.name}: positions only; the noisy recording needs a velocity state')
     d = spec.dimensions
-    states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)  # [S, T+1, n, 2d]
+    states = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)  # [S, T+1, n, d]
     times = np.arange(0.0, law.steps * spec.dt, 1.0 / rate_hz)
     rng = np.random.default_rng(seed + 7919)
     axes = 'xyz'[:d]
@@ -298,7 +296,8 @@ def run_law(
         imp = import_against_law(law, data[0], args.trajectories, sizes[0], args.seed)
         log(
             f'{os.path.basename(folder)}: noise estimate {imp["noise_estimate"] * 1e3:.3g} mm, import against '
-            f'the law: positions {imp["position_rms"] * 1e3:.3g} mm, velocities {imp["velocity_rms"] * 1e3:.3g} mm/s rms'
+            f'the law: positions {imp["position_rms"] * 1e3:.3g} mm, velocities {imp["velocity_rms"] * 1e3:.3g} mm/s, '
+            f'headings {imp.get("heading_rms", float("nan")) * 1e3:.3g} mrad rms'
         )
         result.update(noise_mm=noise_mm, rate=rate, **{'import': imp})
     return result
@@ -389,9 +388,6 @@ def main(argv: Optional[List[str]] = None) -> int:
         'the cases and seeds already run, leaving out the others',
     )
     args = parser.parse_args(argv)
-    flat = [name for name in args.laws if LAWS[name].scenario.velocity is None]
-    if args.noise_mm is not None and flat:
-        parser.error(f'--noise-mm needs a velocity state; {", ".join(flat)} has positions only')
     if args.noise_mm is not None and (min(args.noise_mm) < 0 or min(args.rate) <= 0):
         parser.error(f'--noise-mm must be >= 0 and --rate > 0, got {args.noise_mm} and {args.rate}')
     if min(args.track_robots) < 2:

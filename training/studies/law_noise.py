@@ -30,14 +30,20 @@ ORDERS = (
 
 
 def law_at(law: Law, states: np.ndarray, times: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Positions and velocities ``[len(times), n, dim]`` of one trajectory ``states [T + 1, n, 2 dim]``
-    of ``law`` at any ``times`` in seconds: the cubic Hermite of the steps' positions and
-    velocities, exact for the zero-order hold's quadratic steps."""
+    """Positions and velocities ``[len(times), n, dim]`` of one trajectory ``states [T + 1, n, d]``
+    of ``law`` at any ``times`` in seconds, exact for the zero-order hold's steps: for
+    acceleration commands the cubic Hermite of the steps' positions and velocities (a quadratic
+    step), for velocity commands the straight line between the steps' positions (the velocity
+    constant over a step)."""
     dt, d = law.scenario.dt, law.scenario.dimensions
     times = np.asarray(times, dtype=np.float64)
     k = np.clip((times / dt).astype(int), 0, states.shape[0] - 2)
     s = (times / dt - k)[:, None, None]
-    p, v = states[..., :d], states[..., d:]
+    p = states[..., :d]
+    if law.scenario.command == 'velocity':
+        step = (p[k + 1] - p[k]) / dt
+        return p[k] + s * dt * step, step
+    v = states[..., d : 2 * d]
     h = (2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2)
     dh = (6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s)
     pos = h[0] * p[k] + h[1] * dt * v[k] + h[2] * p[k + 1] + h[3] * dt * v[k + 1]
@@ -48,25 +54,46 @@ def law_at(law: Law, states: np.ndarray, times: np.ndarray) -> Tuple[np.ndarray,
 def import_against_law(law: Law, data, trajectories: int, robots: int, seed: int) -> Dict[str, float]:
     """The imported file ``data`` against the law it recorded (the swarms of
     ``initial_states(law, trajectories, robots, seed)``), each frame at its time in the recording
-    (``meta.trajectories[i].start_ns``): position and velocity RMS errors per axis (m, m/s) and
-    the importer's noise estimate (m, mean over the episodes)."""
+    (``meta.trajectories[i].start_ns``): position RMS error per axis (m), the velocity's (m/s)
+    where the state has one, the heading's (rad: the RMS angle to the law's heading) where it
+    has one, and the importer's noise estimate (m, mean over the episodes)."""
     from knode_swarm_ros.core import load_trajectories
 
     loaded = load_trajectories(data)
-    meta, d = loaded.meta, law.scenario.dimensions
+    meta, spec = loaded.meta, law.scenario
     truth = simulate(law, initial_states(law, trajectories, robots, seed), law.steps)
-    dp, dv = [], []
+    dp, dv, angle = [], [], []
     for states, traj in zip(loaded.states, meta['trajectories']):
         times = traj['start_ns'] * 1e-9 + np.arange(states.shape[0]) * loaded.dt
         pos, vel = law_at(law, truth[traj['episode']], times)
-        dp.append(states[..., :d] - pos)
-        dv.append(states[..., d : 2 * d] - vel)
+        dp.append(states[..., spec.position] - pos)
+        if spec.velocity is not None:
+            dv.append(states[..., spec.velocity] - vel)
+        if spec.heading is not None:
+            # the law's heading is the direction of its last command: the step that ends at or after t
+            k = np.clip(np.ceil(times / law.scenario.dt - 1e-9).astype(int), 1, law.steps)
+            h, ref = states[..., spec.heading], truth[traj['episode']][k][..., spec.heading]
+            cos = (h * ref).sum(-1) / np.maximum(
+                np.linalg.norm(h, axis=-1) * np.linalg.norm(ref, axis=-1), 1e-12
+            )
+            angle.append(np.arccos(np.clip(cos, -1.0, 1.0)))
     estimates = [s['noise']['noise_std'] for s in meta.get('sources', []) if s.get('noise')]
-    return {
-        'position_rms': float(np.sqrt(np.mean(np.square(dp)))),
-        'velocity_rms': float(np.sqrt(np.mean(np.square(dv)))),
+
+    def rms(parts):
+        return (
+            float(np.sqrt(np.mean(np.concatenate([np.square(x).ravel() for x in parts]))))
+            if parts
+            else float('nan')
+        )
+
+    out = {
+        'position_rms': rms(dp),
+        'velocity_rms': rms(dv),
         'noise_estimate': float(np.mean(estimates)) if estimates else float('nan'),
     }
+    if spec.heading is not None:
+        out['heading_rms'] = rms(angle)
+    return out
 
 
 def paired_difference(a: List[float], b: List[float]) -> Tuple[float, float]:
@@ -100,7 +127,8 @@ def noise_table(cases: List[Dict[str, Any]], robots: int = 10) -> str:
         'seed',
         'estimate (mm)',
         'position error (mm)',
-        'velocity error (mm/s)',
+        # a heading state's velocity is not in the state: its heading's error instead
+        'heading error (mrad)' if 'heading_rms' in cases[0]['import'] else 'velocity error (mm/s)',
     ]
     head += [label for _, label in ORDERS] + [f'{label} vs law' for _, label in ORDERS]
     head += [f'{label} vs 0 mm' for _, label in ORDERS] + ['goals met', 'train s', 'load']
@@ -123,7 +151,7 @@ def noise_table(cases: List[Dict[str, Any]], robots: int = 10) -> str:
         cells += [
             f'{imp["noise_estimate"] * 1e3:.3g}',
             f'{imp["position_rms"] * 1e3:.2g}',
-            f'{imp["velocity_rms"] * 1e3:.3g}',
+            f'{imp.get("heading_rms", imp["velocity_rms"]) * 1e3:.3g}',
         ]
         cells += [
             f'{np.mean(_per_start(r, n)):.3g} ± {np.std(_per_start(r, n), ddof=1):.2g}' for n, _ in ORDERS
