@@ -154,15 +154,25 @@ def couzin2d(
     turn_rate: float = 2.0,
     dt: float = DT,
 ) -> np.ndarray:
-    p, h = z[..., :2], z[..., 2:]
+    h = z[..., 2:]
+    away, along, towards, _, crowded = _zones(z[..., :2], h, r_repulse, r_orient, r_attract)
+    want = np.where(crowded, away, h + along + towards)
+    return speed * _turn_towards(h, want, turn_rate * dt)
+
+
+def _zones(p: np.ndarray, h: np.ndarray, r_repulse: float, r_orient: float, r_attract: float):
+    """Couzin's zones of each robot (``p, h [S, n, dim]``): the sums of the directions away from
+    the robots within ``r_repulse``, of the headings of those from there to ``r_orient`` and of
+    the directions to those from there to ``r_attract`` (each ``[S, n, dim]``), the number of
+    robots in the latter two zones and whether any is in the first (``[S, n, 1]``)."""
     r, d = _offsets(p)
     rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
     zor, zoo = d < r_repulse, (d >= r_repulse) & (d < r_orient)
     zoa = (d >= r_orient) & (d < r_attract)
     away = -(rh * zor[..., None]).sum(axis=2)
-    social = h + (h[:, None, :, :] * zoo[..., None]).sum(axis=2) + (rh * zoa[..., None]).sum(axis=2)
-    want = np.where(zor.any(axis=2, keepdims=True), away, social)
-    return speed * _turn_towards(h, want, turn_rate * dt)
+    along = (h[:, None, :, :] * zoo[..., None]).sum(axis=2)
+    towards = (rh * zoa[..., None]).sum(axis=2)
+    return away, along, towards, (zoo | zoa).sum(axis=2, keepdims=True), zor.any(axis=2, keepdims=True)
 
 
 def _turn_towards(h: np.ndarray, want: np.ndarray, most: float) -> np.ndarray:
@@ -190,14 +200,9 @@ def tank2d(
     dt: float = DT,
 ) -> np.ndarray:
     p, h = z[..., :2], z[..., 2:]
-    r, d = _offsets(p)
-    rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
-    zor, zoo = d < r_repulse, (d >= r_repulse) & (d < r_orient)
-    zoa = (d >= r_orient) & (d < r_attract)
-    count = np.maximum((zoo | zoa).sum(axis=2, keepdims=True), 1)
+    away, along, towards, count, crowded = _zones(p, h, r_repulse, r_orient, r_attract)
     # the mean over the zones (a fish heeds its neighbours' directions, not their number)
-    social = h + ((h[:, None, :, :] * zoo[..., None]).sum(axis=2) + (rh * zoa[..., None]).sum(axis=2)) / count
-    want = np.where(zor.any(axis=2, keepdims=True), -(rh * zor[..., None]).sum(axis=2), social)
+    want = np.where(crowded, away, h + (along + towards) / np.maximum(count, 1))
     unit = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 1e-9)
     push = _walls_depth(p, w, wall_range) / wall_range  # 0 to 1 within wall_range
     # near a wall a robot turns away from it and along it, to its left: the school circles
