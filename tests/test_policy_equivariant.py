@@ -151,7 +151,9 @@ def test_the_recipe_derives_the_spacing_as_scale_and_no_half_turns_without_an_ar
     assert cfg['policy']['symmetric'] is True and cfg['augment']['rotate'] is False
 
 
-def test_a_law_declared_not_rotation_invariant_is_refused_naming_the_encoder():
+def test_a_law_declared_not_rotation_invariant_sees_the_axes_or_is_refused_naming_the_encoder():
     scenario = spec(2, 'position', 'velocity')
+    cfg, derived = _recipe(scenario, _tracks(2, 'position'), **{'augment.rotate': False})
+    assert cfg['policy']['axes'] is True and cfg['policy']['symmetric'] is False
     with pytest.raises(ConfigError, match="policy.encoder = 'equivariant'.*augment.rotate"):
-        _recipe(scenario, _tracks(2, 'position'), **{'augment.rotate': False})
+        _recipe(scenario, _tracks(2, 'position'), **{'augment.rotate': False, 'policy.axes': False})

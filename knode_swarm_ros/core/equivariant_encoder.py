@@ -35,6 +35,14 @@ the own position matters: ``place`` (one tanh layer on the own position and velo
 absolute command, which the policy's half-turn average (``symmetric``) keeps equivariant
 under the arena's own symmetries. Inputs arrive already divided by the policy's input scales.
 A position-only state has no velocity: the vectors are ``r_hat`` (and, in 2D, it turned).
+
+``axes``: where rotations are no symmetry of the law (a room whose vertical is special: drones
+that swirl about it, a school that keeps its depth), the pair terms also see the coordinate
+axes: the components of ``r_hat`` (and of ``dv``, ``v``) are pair scalars and the axes' unit
+vectors pair vectors, so a pair term may be any function of the offset (a swirl about the
+vertical is ``e_z x r_hat``, two axes' coefficients); the half-turn average keeps what symmetry
+the arena has. A neighbour in the own state still adds nothing (the axes' coefficients are
+taken relative to it, as the own velocity's).
 """
 
 from __future__ import annotations
@@ -95,9 +103,11 @@ class EquivariantEncoder(nn.Module):
         hidden: int,
         keep_own_position: bool,
         reach: float = 8.0,
+        axes: bool = False,
     ):
         """``reach``: the communication radius in units of the position scale (the farthest
-        neighbour distance the basis resolves)."""
+        neighbour distance the basis resolves); ``axes``: the pair terms see the coordinate axes
+        (module docstring)."""
         super().__init__()
         self.position_dim = position_dim
         self.moving = state_dim > position_dim
@@ -108,6 +118,12 @@ class EquivariantEncoder(nn.Module):
             self.vectors = 2 if position_dim == 2 else 1
             scalars = 1
         scalars += DISTANCE_BASIS
+        self.axes = bool(axes)
+        if self.axes:
+            scalars += position_dim * (3 if self.moving else 1)  # the components of r_hat (dv, v)
+        relative_vectors = self.vectors  # those a neighbour in the own state gives as zero
+        if self.axes:
+            self.vectors += position_dim
         top = math.log1p(float(reach))
         # plain floats, as the other constants here: ONNX export takes flat lists
         self.basis_centres: List[float] = [top * i / (DISTANCE_BASIS - 1) for i in range(DISTANCE_BASIS)]
@@ -115,12 +131,15 @@ class EquivariantEncoder(nn.Module):
         self.own_vectors = (2 if position_dim == 2 else 1) if self.moving else 0
         # 1 for the pair vectors that do not vanish for a neighbour in the own state (v, v turned),
         # per channel (sum, then mean): plain floats, as the half-turn signs, for ONNX export
-        own_velocity = [0.0] * self.vectors
+        own_velocity = [0.0] * relative_vectors + [1.0] * (self.vectors - relative_vectors)
         if self.moving:
             own_velocity[2] = 1.0
             if position_dim == 2:
                 own_velocity[5] = 1.0
         self.own_velocity_mask: List[float] = own_velocity * 2
+        self.axis_vectors: List[float] = [
+            float(i == j) for i in range(position_dim) for j in range(position_dim)
+        ]
         self.pair = nn.Linear(scalars, hidden)
         self.pair_out = nn.Linear(hidden, 2 * self.vectors, bias=False)  # sum, then mean channel
         # built only where used (hasattr is resolved when scripted: one branch per policy)
@@ -143,9 +162,9 @@ class EquivariantEncoder(nn.Module):
         radial = torch.cat([logd, torch.exp(-(((logd - centres) / self.basis_width) ** 2))], dim=-1)
         dv, v = _soft(dv), _soft(v)
         if not self.moving:
-            if self.position_dim == 2:
-                return radial, torch.stack([rh, _left(rh)], dim=2)
-            return radial, rh.unsqueeze(2)
+            scalars = radial
+            vectors = torch.stack([rh, _left(rh)], dim=2) if self.position_dim == 2 else rh.unsqueeze(2)
+            return self._with_axes(scalars, vectors, [rh])
         base = [
             radial,
             _norm(dv),
@@ -157,10 +176,21 @@ class EquivariantEncoder(nn.Module):
         if self.position_dim == 2:
             left_rh, left_dv, left_v = _left(rh), _left(dv), _left(v)
             scalars = torch.cat(base + [_dot(left_rh, dv), _dot(left_rh, v), _dot(left_dv, v)], dim=-1)
-            return scalars, torch.stack([rh, dv, v, left_rh, left_dv, left_v], dim=2)
-        scalars = torch.cat(base + [_dot(rh, _cross(dv, v))], dim=-1)
-        vectors = torch.stack([rh, dv, v, _cross(rh, dv), _cross(rh, v), _cross(dv, v)], dim=2)
-        return scalars, vectors
+            vectors = torch.stack([rh, dv, v, left_rh, left_dv, left_v], dim=2)
+        else:
+            scalars = torch.cat(base + [_dot(rh, _cross(dv, v))], dim=-1)
+            vectors = torch.stack([rh, dv, v, _cross(rh, dv), _cross(rh, v), _cross(dv, v)], dim=2)
+        return self._with_axes(scalars, vectors, [rh, dv, v])
+
+    def _with_axes(self, scalars: Tensor, vectors: Tensor, components: List[Tensor]):
+        """With ``axes``, the pair scalars gain the ``components`` vectors' coordinates and the
+        pair vectors the axes' unit vectors; else both as they are."""
+        if not self.axes:
+            return scalars, vectors
+        p = self.position_dim
+        eye = torch.tensor(self.axis_vectors, dtype=vectors.dtype, device=vectors.device).reshape(1, 1, p, p)
+        eye = eye.expand(vectors.shape[0], vectors.shape[1], p, p)
+        return torch.cat([scalars] + components, dim=-1), torch.cat([vectors, eye], dim=2)
 
     def forward(self, Y: Tensor, mask: Tensor) -> Tensor:
         p = self.position_dim

@@ -10,7 +10,8 @@
   permutation-invariant neighbour encoder (:mod:`.set_encoder`) whose weights do not depend on
   k, so a policy learnt with a small k runs with a larger one; ``encoder='equivariant'``
   (:mod:`.equivariant_encoder`) is one too, and exactly rotation-equivariant: pairwise terms
-  along the directions the robots define.
+  along the directions the robots define; with ``axes=True`` its pair terms also see the
+  coordinate axes, for laws that rotations change (a room whose vertical is special).
 * ``symmetric=True`` averages ``u_theta`` over the half turns about the coordinate axes
   (:func:`half_turns`): the network is then exactly equivariant under them. Training data
   rotated at random teach a network the symmetry only approximately, and a constant left over
@@ -44,7 +45,7 @@ from .knowledge import (
     continuous_wall_avoidance,
     wall_avoidance,
 )
-from .scenarios import _is_number, get_scenario
+from .scenarios import _is_number, get_scenario, scenario_ref
 from .set_encoder import NeighbourSetEncoder
 from .steering import FREE_SPEED, FREE_TURN, steer
 
@@ -100,6 +101,7 @@ class PolicyConfig:
     velocity_scale: float = 1.0
     speed: Optional[float] = None
     turn_limit: Optional[float] = None
+    axes: bool = False
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
@@ -115,6 +117,8 @@ class PolicyConfig:
             'encoder': self.encoder == 'flat'
             or (self.encoder in ROW_FREE_ENCODERS and self.frame == 'relative'),
             'symmetric': isinstance(self.symmetric, bool),
+            # the other encoders see the offsets' coordinates already
+            'axes': self.axes is False or (self.axes is True and self.encoder == 'equivariant'),
             'potential': self.potential in ('paper', 'continuous'),
             'command_limit': self.command_limit > 0,
             'collision_d0': self.collision_d0 > 0,
@@ -207,6 +211,7 @@ class KNODEPolicy(nn.Module):
                 config.hidden,
                 self.keep_own_position,
                 reach=config.d_cr / config.position_scale,
+                **({'axes': True} if config.axes else {}),
             )
         else:
             n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)
@@ -320,5 +325,7 @@ class KNODEPolicy(nn.Module):
             'hidden': self.config.hidden,
             'config': {k: v for k, v in asdict(self.config).items() if k != 'extra'},
         }
+        # a Scenario object would turn into its fields (arena as a float), which no loader reads
+        meta['config']['scenario'] = scenario_ref(self.config.scenario)
         meta.update(self.config.extra)
         return meta

@@ -36,10 +36,14 @@ derived, in order (later rules use earlier values, derived or given):
   heading and the next command (unbounded if that reaches pi); else unset (the command is free);
 * ``noise.variance``: (2 % of the smaller input scale)^2;
 * ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
+* ``policy.axes`` (``equivariant`` only; false for the others, which see the offsets' coordinates):
+  true where rotations are no symmetry of the law (``augment.rotate`` false: an arena, or a law
+  declared so), the pair terms then see the coordinate axes;
 * ``policy.symmetric``: the network averaged over the half turns about the axes: without an arena
   as ``augment.rotate`` (a law with a preferred direction sets that false), with one true (the
   half turns map the arena onto itself); false for ``equivariant`` without an arena (exact under
-  every rotation already; with ``augment.rotate: false`` it is refused, naming the encoder).
+  every rotation already, or seeing the axes; with ``augment.rotate: false`` and ``policy.axes:
+  false`` it is refused, naming the encoder).
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ DERIVED_FIELDS = (
     'policy.turn_limit',
     'noise.variance',
     'augment.rotate',
+    'policy.axes',
     'policy.symmetric',
 )
 # A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
@@ -285,16 +290,36 @@ def derive(
         if spec.arena is None
         else 'false: the arena breaks rotational symmetry',
     )
+    rotate = bool(cfg['augment']['rotate'])
+    if encoder == 'equivariant':
+        put(
+            'policy.axes',
+            not rotate,
+            'false: rotations are a symmetry of the law (augment.rotate)'
+            if rotate
+            else 'true: rotations are no symmetry of the law (augment.rotate is false): the pair terms see '
+            'the coordinate axes',
+        )
+    else:
+        put('policy.axes', False, f"false: the {encoder} encoder sees the offsets' coordinates already")
     averaged = ' (the network is averaged over the half turns about the axes)'
     if spec.arena is not None:
         turn, why = True, 'true: the half turns about the axes map the arena onto itself' + averaged
     elif encoder == 'equivariant':
-        if not cfg['augment']['rotate']:  # it could not learn the law's preferred direction
+        if not rotate and not pol.get('axes'):  # it could not learn the law's preferred direction
             raise ValueError(
-                "policy.encoder = 'equivariant' is exactly rotation-equivariant, but augment.rotate is "
-                'false (a law that rotations change, without an arena): use policy.encoder set or flat'
+                "policy.encoder = 'equivariant' is exactly rotation-equivariant without policy.axes, but "
+                'augment.rotate is false (a law that rotations change, without an arena): set policy.axes '
+                'true (or auto), or use policy.encoder set or flat'
             )
-        turn, why = False, 'false: the equivariant encoder is exactly rotation-equivariant already'
+        turn, why = (
+            False,
+            (
+                'false: the equivariant encoder is exactly rotation-equivariant already'
+                if rotate
+                else 'false: no arena, and the law is no rotation invariant (policy.axes)'
+            ),
+        )
     else:
         turn = bool(cfg['augment']['rotate'])
         why = 'as augment.rotate: ' + (

@@ -1,0 +1,184 @@
+"""The equivariant encoder that sees the coordinate axes (``policy.axes``): a known answer (a swirl
+about the vertical, which the rotation-equivariant pair terms cannot give), equivariance under the
+arena's half turns only, a neighbour in the own state adding nothing, TorchScript and ONNX parity,
+the config's refusals, old files, and what the recipe derives."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+from export_parity import assert_exports_equal
+from scipy.stats import special_ortho_group
+
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig
+from knode_swarm_ros.core.equivariant_encoder import DISTANCE_BASIS
+from knode_swarm_ros.core.errors import ConfigError
+from knode_swarm_ros.core.policy import half_turns
+from knode_swarm_ros.core.scenarios import scenario_from_dict
+from training.learning.config import load_config, resolve_config
+
+torch.set_num_threads(1)
+RECIPE = os.path.join(os.path.dirname(__file__), '..', 'config', 'train_custom.yaml')
+
+
+def spec(dims, state, command, arena=None):
+    return scenario_from_dict(
+        dict(name=f'ax{dims}{state}', dimensions=dims, state=state, command=command, dt=0.05, arena=arena)
+    )
+
+
+ROOM = {'half_width': 2.5}
+KINDS = [
+    (spec(3, 'position', 'velocity', ROOM), 3, 3),
+    (spec(3, 'position_velocity', 'acceleration', ROOM), 3, 6),
+    (spec(2, 'position_heading', 'velocity', ROOM), 2, 4),
+    (spec(2, 'position', 'velocity'), 2, 2),
+]
+IDS = ['position3d-room', 'double-integrator3d-room', 'heading2d-room', 'position2d']
+
+
+def batch(d, k=6, B=7, seed=0):
+    """``Y [B, k, d]`` (robots within the room) and ``mask [B, k]``, one robot with fewer neighbours."""
+    g = torch.Generator().manual_seed(seed)
+    Y = torch.randn(B, k, d, generator=g)
+    mask = torch.ones(B, k)
+    mask[0, 4:] = 0.0
+    return Y, mask
+
+
+def make(scenario, seed=0, **overrides):
+    torch.manual_seed(seed)
+    base = dict(
+        encoder='equivariant', k=6, d_cr=3.0, hidden=16, position_scale=0.7, velocity_scale=0.8, axes=True
+    )
+    base.update(overrides)
+    return KNODEPolicy(PolicyConfig(scenario, **base)).eval()
+
+
+def test_hand_set_weights_give_a_swirl_about_the_vertical():
+    """Two hidden units read the x and y components of r_hat (small weight e: tanh(e x) = e x to
+    O(e^3)) and are the coefficients of e_y and -e_x in the sum channel: u_i = sum_j e_z x r_hat_ij,
+    a swirl about the vertical through the neighbours that no function of rotation-invariant
+    scalars times the pair's own vectors (r_hat alone, for positions) can give."""
+    scenario, _, d = KINDS[0]
+    policy = make(scenario, hidden=2, collision=False, wall=False, command_limit=1e6, symmetric=False)
+    enc, e = policy.encoder, 1e-3
+    first = 1 + DISTANCE_BASIS  # log(1 + d), the basis, then the components of r_hat
+    assert enc.vectors == 1 + 3 and enc.pair.in_features == first + 3
+    with torch.no_grad():
+        for param in enc.parameters():
+            param.zero_()
+        enc.pair.weight[0, first] = e  # r_hat_x
+        enc.pair.weight[1, first + 1] = e  # r_hat_y
+        out = torch.zeros(2 * enc.vectors, 2)  # rows: sum channel (r_hat, e_x, e_y, e_z), mean channel
+        out[2, 0] = 1.0 / e  # e_y gets r_hat_x
+        out[1, 1] = -1.0 / e  # e_x gets -r_hat_y
+        enc.pair_out.weight.copy_(out)
+    Y, mask = batch(d)
+    with torch.no_grad():
+        u = policy(Y, mask).numpy().astype(np.float64)
+    r = (Y[:, 1:] - Y[:, :1]).numpy().astype(np.float64)
+    rh = r / np.linalg.norm(r, axis=-1, keepdims=True) * mask[:, 1:].numpy()[..., None]
+    swirl = np.cross(np.array([0.0, 0.0, 1.0]), rh).sum(1)
+    np.testing.assert_allclose(u, swirl, atol=1e-4)
+    assert np.abs(swirl).max() > 0.5
+
+
+@pytest.mark.parametrize('scenario,p,d', KINDS, ids=IDS)
+def test_the_axes_break_rotations_the_half_turn_average_restores_the_arenas(scenario, p, d):
+    """Seeing the axes, the network commutes with no rotation in general (unlike the plain
+    equivariant encoder, tests/test_policy_equivariant.py), and averaged over the half turns
+    (``symmetric``) it commutes with each of them."""
+    Y, mask = batch(d)
+    R = torch.tensor(special_ortho_group.rvs(p, random_state=3), dtype=torch.float32)
+    turn = torch.block_diag(*[R] * (d // p))
+    with torch.no_grad():
+        plain, seeing = make(scenario, axes=False, symmetric=False), make(scenario, symmetric=False)
+        if scenario.arena is None:  # the own position does not enter: the plain encoder commutes
+            torch.testing.assert_close(plain.network(Y @ turn.T, mask), plain.network(Y, mask) @ R.T)
+        assert not torch.allclose(seeing.network(Y @ turn.T, mask), seeing.network(Y, mask) @ R.T, atol=1e-3)
+        averaged = make(scenario, symmetric=True)
+        u = averaged.network(Y, mask)
+        for signs in half_turns(p):
+            s = torch.tensor(signs)
+            torch.testing.assert_close(
+                averaged.network(Y * s.repeat(d // p), mask), u * s, rtol=1e-5, atol=1e-6
+            )
+
+
+@pytest.mark.parametrize('scenario,p,d', KINDS, ids=IDS)
+def test_a_neighbour_in_the_own_state_adds_nothing_to_the_sum(scenario, p, d):
+    """The axes' coefficients are taken relative to a neighbour in the own state, as the own
+    velocity's: with the means off (the mean channel, the own term), a copy of the robot among
+    its neighbours changes nothing."""
+    policy = make(scenario, symmetric=False)
+    enc = policy.encoder
+    with torch.no_grad():
+        enc.pair_out.weight[enc.vectors :].zero_()  # the mean channel divides by the count,
+        if hasattr(enc, 'own'):  # and so does the own term's mean of the hidden units
+            enc.own[-1].weight.zero_()
+            enc.own[-1].bias.zero_()
+        Y, mask = batch(d, k=5)
+        mask[0, 4:] = 1.0
+        with_copy = torch.cat([Y, Y[:, :1]], dim=1)
+        torch.testing.assert_close(
+            policy.network(with_copy, torch.cat([mask, torch.ones(len(Y), 1)], dim=1)),
+            policy.network(Y, mask),
+            rtol=1e-5,
+            atol=1e-6,
+        )
+
+
+@pytest.mark.parametrize('scenario,p,d', KINDS[:3], ids=IDS[:3])
+def test_torchscript_and_onnx_equal_the_eager_module(tmp_path, scenario, p, d):
+    policy = make(scenario, symmetric=True)
+    loaded = assert_exports_equal(policy, tmp_path / 'axes.pt', *batch(d))
+    assert loaded.meta['config']['axes'] is True
+    assert PolicyConfig(**loaded.meta['config']).axes is True
+
+
+def test_the_config_refuses_axes_for_other_encoders_and_non_booleans_and_old_files_have_none():
+    room = KINDS[0][0]
+    for bad in (dict(encoder='set', axes=True), dict(encoder='flat', axes=True), dict(axes='yes')):
+        with pytest.raises(ValueError, match='axes'):
+            PolicyConfig(room, **{'encoder': 'equivariant', **bad})
+    meta = make(room, axes=False).metadata()
+    assert meta['config']['axes'] is False
+    del meta['config']['axes']  # as files written before the field existed
+    old = KNODEPolicy(PolicyConfig(**meta['config']))
+    assert old.encoder.axes is False
+    assert set(old.state_dict()) == set(make(room, axes=False).state_dict())
+
+
+def _recipe(scenario, **overrides):
+    rng = np.random.default_rng(0)
+    tracks = rng.uniform(-2.0, 2.0, size=(2, 6, 9, scenario.state_dim))
+    if scenario.heading is not None:
+        tracks[..., scenario.heading] /= np.linalg.norm(tracks[..., scenario.heading], axis=-1, keepdims=True)
+    ref = json.dumps(scenario.to_dict(), sort_keys=True)
+    return resolve_config(load_config(RECIPE, overrides), [tracks], ref, scenario.dt)
+
+
+@pytest.mark.parametrize(
+    'scenario,overrides,axes,symmetric',
+    [
+        (KINDS[0][0], {}, True, True),  # a room: no rotation symmetry, its half turns
+        (KINDS[3][0], {}, False, False),  # open space: exact under rotations already
+        (KINDS[3][0], {'augment.rotate': False}, True, False),  # a law declared to have a direction
+        (KINDS[0][0], {'policy.axes': False}, False, True),  # an explicit value wins
+        (KINDS[0][0], {'policy.encoder': 'set'}, False, True),  # it sees the coordinates already
+    ],
+    ids=['room', 'open', 'declared', 'explicit', 'set-encoder'],
+)
+def test_the_recipe_derives_the_axes_where_rotations_are_no_symmetry(scenario, overrides, axes, symmetric):
+    cfg, derived = _recipe(scenario, **overrides)
+    assert cfg['policy']['axes'] is axes and cfg['policy']['symmetric'] is symmetric
+    if 'policy.axes' not in overrides:
+        assert derived['policy.axes']['value'] is axes and derived['policy.axes']['how']
+
+
+def test_a_law_with_a_direction_and_no_axes_is_refused_naming_both_fields():
+    with pytest.raises(ConfigError, match="policy.encoder = 'equivariant'.*policy.axes.*augment.rotate"):
+        _recipe(KINDS[3][0], **{'augment.rotate': False, 'policy.axes': False})
