@@ -223,7 +223,7 @@ def test_tank_school_turns_off_a_wall_along_it_and_keeps_its_speed():
 def test_drones_spring_to_their_spacing_swirl_and_stay_off_the_walls():
     """drones3d_arena: two drones 0.5 m apart along x push apart, 1.0 m apart pull together
     (spacing 0.7 m), beyond reach (1.6 m) nothing; the swirl moves each drone to the left of
-    its offset to the neighbours' centroid (about the vertical, anticlockwise); a lone drone
+    its offset to the neighbours' centroid (about the vertical, clockwise from above); a lone drone
     0.2 m from the +z wall descends; every command within 0.6 m/s."""
     from training.studies.laws import drones3d_arena
 

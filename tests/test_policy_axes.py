@@ -1,7 +1,9 @@
-"""The equivariant encoder that sees the coordinate axes (``policy.axes``): a known answer (a swirl
-about the vertical, which the rotation-equivariant pair terms cannot give), equivariance under the
-arena's half turns only, a neighbour in the own state adding nothing, TorchScript and ONNX parity,
-the config's refusals, old files, and what the recipe derives."""
+"""Laws that rotations change. The equivariant encoder that sees the coordinate axes
+(``policy.axes``): a known answer (a swirl about the vertical, which the rotation-equivariant pair
+terms cannot give), equivariance under the arena's half turns only, a neighbour in the own state
+adding nothing, TorchScript and ONNX parity, the config's refusals, old files, and what the recipe
+derives; the half turn about one axis (``symmetric: z``), which keeps a swirl about it, and the
+recipe's choice of half turns from the data's senses of rotation."""
 
 import json
 import os
@@ -182,3 +184,85 @@ def test_the_recipe_derives_the_axes_where_rotations_are_no_symmetry(scenario, o
 def test_a_law_with_a_direction_and_no_axes_is_refused_naming_both_fields():
     with pytest.raises(ConfigError, match="policy.encoder = 'equivariant'.*policy.axes.*augment.rotate"):
         _recipe(KINDS[3][0], **{'augment.rotate': False, 'policy.axes': False})
+
+
+def test_the_half_turn_about_one_axis_keeps_a_swirl_about_it_all_of_them_cancel_it():
+    """The hand-set swirl about z (above), averaged over the half turns: about z alone
+    (``symmetric='z'``) it is kept exactly, over all of them it cancels (those about x and y
+    reverse it); the z-averaged network commutes with the half turn about z."""
+    assert half_turns(3, 'z') == [[1.0, 1.0, 1.0], [-1.0, -1.0, 1.0]]
+    for p, about in ((2, 'z'), (3, 'w')):
+        with pytest.raises(ValueError, match='half turns'):
+            half_turns(p, about)
+    scenario, _, d = KINDS[0]
+    Y, mask = batch(d)
+    out = {}
+    for symmetric in (False, 'z', True):
+        policy = make(scenario, hidden=2, collision=False, wall=False, command_limit=1e6, symmetric=symmetric)
+        enc, e = policy.encoder, 1e-3
+        first = 1 + DISTANCE_BASIS
+        with torch.no_grad():
+            for param in enc.parameters():
+                param.zero_()
+            enc.pair.weight[0, first], enc.pair.weight[1, first + 1] = e, e
+            enc.pair_out.weight[2, 0], enc.pair_out.weight[1, 1] = 1.0 / e, -1.0 / e
+            out[symmetric] = policy(Y, mask)
+    torch.testing.assert_close(out['z'], out[False])
+    assert out[False].abs().max() > 0.5 and out[True].abs().max() < 1e-5
+    policy = make(scenario, symmetric='z')
+    s = torch.tensor(half_turns(3, 'z')[1])
+    with torch.no_grad():
+        torch.testing.assert_close(
+            policy.network(Y * s, mask), policy.network(Y, mask) * s, rtol=1e-5, atol=1e-6
+        )
+
+
+def test_symmetric_names_an_axis_only_in_3d_and_exports_with_it(tmp_path):
+    for scenario, value in ((KINDS[2][0], 'z'), (KINDS[0][0], 'w'), (KINDS[0][0], 'Z')):
+        with pytest.raises(ValueError, match='symmetric'):
+            PolicyConfig(scenario, encoder='equivariant', symmetric=value)
+    scenario, _, d = KINDS[1]
+    loaded = assert_exports_equal(make(scenario, symmetric='z'), tmp_path / 'z.pt', *batch(d))
+    assert loaded.meta['config']['symmetric'] == 'z'
+
+
+def _rings(axis_of, trajectories=12, robots=8, steps=40, seed=0):
+    """``[N, T, n, 3]`` robots on rings turning about ``axis_of(i)`` (a unit vector) at 1 rad/s,
+    each ring's centre and phase random, inside the room."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps) * 0.05
+    out = np.empty((trajectories, steps, robots, 3))
+    for i in range(trajectories):
+        a = np.asarray(axis_of(i, rng), dtype=float)
+        a /= np.linalg.norm(a)
+        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        w = np.cross(a, u)
+        phase = rng.uniform(0, 2 * np.pi, robots)[None, :] + t[:, None]  # [T, n]
+        radius = rng.uniform(0.5, 1.5, robots)[None, :, None]
+        ring = radius * (np.cos(phase)[..., None] * u + np.sin(phase)[..., None] * w)
+        out[i] = ring + rng.uniform(-0.5, 0.5, 3)
+    return out
+
+
+@pytest.mark.parametrize(
+    'axis_of,expected,named',
+    [
+        (lambda i, rng: [0.0, 0.0, 1.0], 'z', 'about z'),  # every ring turns one way about z
+        (lambda i, rng: [0.0, -1.0, 0.0], 'y', 'about y'),
+        (lambda i, rng: [1.0, 0.0, 1.0], False, 'about x and z'),  # no half turn keeps both
+        (lambda i, rng: rng.normal(size=3), True, None),  # any sense about any axis: all half turns
+    ],
+    ids=['z', 'y', 'x-and-z', 'isotropic'],
+)
+def test_the_recipe_keeps_the_half_turns_that_keep_the_datas_senses_of_rotation(axis_of, expected, named):
+    room = KINDS[0][0]
+    ref = json.dumps(room.to_dict(), sort_keys=True)
+    cfg, derived = resolve_config(load_config(RECIPE), [_rings(axis_of)], ref, room.dt)
+    assert (
+        cfg['policy']['symmetric'] is expected
+        if isinstance(expected, bool)
+        else cfg['policy']['symmetric'] == expected
+    )
+    how = derived['policy.symmetric']['how']
+    assert (named in how) if named else ('turn one way' not in how)

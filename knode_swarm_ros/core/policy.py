@@ -16,7 +16,10 @@
   (:func:`half_turns`): the network is then exactly equivariant under them. Training data
   rotated at random teach a network the symmetry only approximately, and a constant left over
   in a per-neighbour term grows with the neighbour count: a denser swarm than the data then
-  drifts as a whole. The average of a constant over the half turns is zero.
+  drifts as a whole. The average of a constant over the half turns is zero. ``symmetric='z'``
+  (3D; or ``'x'``, ``'y'``) averages over the identity and the half turn about that axis only:
+  a law that swirls one way about the vertical keeps its sense (the half turns about x and y
+  reverse it).
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
@@ -32,7 +35,7 @@ The forward signature is the policy file contract: ``forward(Y [B, k, d], mask [
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Union
 
 import torch
 from torch import Tensor, nn
@@ -49,23 +52,32 @@ from .scenarios import _is_number, get_scenario, scenario_ref
 from .set_encoder import NeighbourSetEncoder
 from .steering import FREE_SPEED, FREE_TURN, steer
 
-__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'ROW_FREE_ENCODERS', 'half_turns']
+__all__ = ['PolicyConfig', 'KNODEPolicy', 'DEFAULTS', 'ROW_FREE_ENCODERS', 'TURN_AXES', 'half_turns']
 
 #: The encoders with no weight per neighbour row (permutation invariant: the rows are summed),
 #: by ``policy.encoder`` name; ``flat`` (the paper's MLP over the k rows) is the other one.
 ROW_FREE_ENCODERS = {'set': NeighbourSetEncoder, 'equivariant': EquivariantEncoder}
 
 
-def half_turns(position_dim: int) -> List[List[float]]:
+#: ``symmetric`` values that name one axis (3D): the identity and the half turn about it alone.
+TURN_AXES = ('x', 'y', 'z')
+
+
+def half_turns(position_dim: int, about: Optional[str] = None) -> List[List[float]]:
     """The identity and the rotations by 180 degrees about the coordinate axes, as the signs of
     their diagonal matrices ``[G][position_dim]``: a group of rotations that maps the arena
     ``[-w, w]^d`` onto itself and averages any constant vector to zero (2D: the half turn
-    about the origin; 3D: the three half turns about x, y and z)."""
-    if position_dim == 2:
+    about the origin; 3D: the three half turns about x, y and z). ``about`` (3D, one of
+    :data:`TURN_AXES`): the identity and the half turn about that axis only, the subgroup that
+    keeps a sense of rotation about it (a half turn about x or y reverses a swirl about z)."""
+    if position_dim == 2 and about is None:
         return [[1.0, 1.0], [-1.0, -1.0]]
     if position_dim == 3:
-        return [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]
-    raise ValueError(f'half_turns: position_dim must be 2 or 3, not {position_dim}')
+        if about is None:
+            return [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]
+        if about in TURN_AXES:
+            return [[1.0, 1.0, 1.0], [1.0 if axis == about else -1.0 for axis in TURN_AXES]]
+    raise ValueError(f'half_turns: no half turns about {about!r} in {position_dim} dimensions')
 
 
 @dataclass
@@ -86,7 +98,7 @@ class PolicyConfig:
     hidden: int = 128
     frame: str = 'relative'
     encoder: str = 'flat'
-    symmetric: bool = False
+    symmetric: Union[bool, str] = False
     command_limit: float = 10.0
     collision: bool = True
     potential: str = 'paper'
@@ -116,7 +128,8 @@ class PolicyConfig:
             # the row-free encoders are built on offsets to the robot: they have no absolute frame
             'encoder': self.encoder == 'flat'
             or (self.encoder in ROW_FREE_ENCODERS and self.frame == 'relative'),
-            'symmetric': isinstance(self.symmetric, bool),
+            'symmetric': isinstance(self.symmetric, bool)
+            or (self.symmetric in TURN_AXES and spec.position_dim == 3),
             # the other encoders see the offsets' coordinates already
             'axes': self.axes is False or (self.axes is True and self.encoder == 'equivariant'),
             'potential': self.potential in ('paper', 'continuous'),
@@ -218,10 +231,12 @@ class KNODEPolicy(nn.Module):
             self.net = nn.Sequential(
                 nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
             )
-        self.symmetric = bool(config.symmetric)
+        self.symmetric = config.symmetric is not False
         # the signs of each half turn on every command and state entry (positions, then velocities
         # or headings), flattened row by row: ONNX export takes flat lists of constants only
-        turns = half_turns(spec.position_dim)
+        turns = half_turns(
+            spec.position_dim, None if isinstance(config.symmetric, bool) else config.symmetric
+        )
         self.turn_count = len(turns)
         self.command_signs: List[float] = [s for t in turns for s in t]
         self.state_signs: List[float] = [s for t in turns for s in t * (spec.state_dim // spec.position_dim)]

@@ -39,7 +39,9 @@ derived, in order (later rules use earlier values, derived or given):
 * ``policy.axes`` (``equivariant`` only; false for the others, which see the offsets' coordinates):
   true where rotations are no symmetry of the law (``augment.rotate`` false: an arena, or a law
   declared so), the pair terms then see the coordinate axes;
-* ``policy.symmetric``: the network averaged over the half turns about the axes: without an arena
+* ``policy.symmetric``: the network averaged over the half turns about the axes (in 3D only those
+  that keep the data's preferred senses of rotation: a swarm that turns one way about the
+  vertical keeps the half turn about it alone, :func:`senses_of_rotation`): without an arena
   as ``augment.rotate`` (a law with a preferred direction sets that false), with one true (the
   half turns map the arena onto itself); false for ``equivariant`` without an arena (exact under
   every rotation already, or seeing the axes; with ``augment.rotate: false`` and ``policy.axes:
@@ -305,6 +307,7 @@ def derive(
     averaged = ' (the network is averaged over the half turns about the axes)'
     if spec.arena is not None:
         turn, why = True, 'true: the half turns about the axes map the arena onto itself' + averaged
+        turn, why = _keep_senses(turn, why, trajectories, spec, dt)
     elif encoder == 'equivariant':
         if not rotate and not pol.get('axes'):  # it could not learn the law's preferred direction
             raise ValueError(
@@ -326,8 +329,57 @@ def derive(
             'the law is taken to be rotation invariant' if turn else 'rotations are off'
         )
         why += averaged
+        if turn:
+            turn, why = _keep_senses(turn, why, trajectories, spec, dt)
     put('policy.symmetric', turn, why)
     return cfg, record
+
+
+def senses_of_rotation(trajectories: Sequence[np.ndarray], spec: Scenario, dt: float):
+    """Each trajectory's mean signed rotation about each coordinate axis: the component along it
+    of ``(p - c) x v / (|p - c| |v|)`` (c the swarm's centroid, v from the positions), averaged
+    over frames and moving robots. Returns ``[U, 3]`` (3D; ``[0, 3]`` in 2D, where the one half
+    turn keeps every sense)."""
+    if spec.position_dim != 3:
+        return np.zeros((0, 3))
+    out = []
+    for states, v in zip(trajectories, _rates(trajectories, spec.position, dt)):
+        p = np.asarray(states, dtype=np.float64)[:, :-1][..., spec.position]
+        r = p - p.mean(axis=-2, keepdims=True)
+        norm = np.linalg.norm(r, axis=-1) * np.linalg.norm(v, axis=-1)  # [N, T-1, n]
+        moving = norm > 1e-12
+        spin = np.cross(r, v) / np.where(moving, norm, 1.0)[..., None]
+        out.append(
+            (spin * moving[..., None]).sum(axis=(1, 2)) / np.maximum(moving.sum(axis=(1, 2)), 1)[:, None]
+        )
+    return np.concatenate(out)
+
+
+def _keep_senses(turn, why: str, trajectories, spec: Scenario, dt: float):
+    """``policy.symmetric`` (all half turns) narrowed to those that keep the data's preferred
+    senses of rotation: where the trajectories turn one way about a coordinate axis (the mean of
+    :func:`senses_of_rotation` beyond 3 standard errors and 0.1), the half turns about the other
+    axes, which reverse that sense, are left out: only the one about that axis (one preferred
+    axis) or none (more)."""
+    spin = senses_of_rotation(trajectories, spec, dt)
+    if len(spin) < 3:
+        return turn, why
+    mean = spin.mean(axis=0)
+    se = spin.std(axis=0, ddof=1) / math.sqrt(len(spin))
+    preferred = [axis for axis, m, e in zip('xyz', mean, se) if abs(m) > max(3.0 * e, 0.1)]
+    if not preferred:
+        return turn, why
+    said = ', '.join(f'{axis}: {m:+.3g} ± {e:.2g}' for axis, m, e in zip('xyz', mean, se))
+    seen = (
+        f'the data turn one way about {" and ".join(preferred)} (mean signed rotation over {len(spin)} '
+        f'trajectories, ± standard error: {said})'
+    )
+    if len(preferred) == 1:
+        return preferred[0], (
+            f'{preferred[0]}: {seen}; the half turns about the other axes would reverse it: the network is '
+            f'averaged over the half turn about {preferred[0]} alone'
+        )
+    return False, f'false: {seen}; every half turn would reverse one of them'
 
 
 def _derive_steering(put, trajectories: Sequence[np.ndarray], spec: Scenario, dt: float) -> None:
