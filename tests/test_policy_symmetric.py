@@ -54,7 +54,7 @@ def test_half_turns_are_rotations_that_average_a_constant_to_zero():
         assert np.all(np.prod(signs, axis=1) == 1.0)  # determinant +1: rotations, no mirror
         assert np.all(signs.sum(axis=0) == 0.0)  # the mean of g c over the group is 0
         assert {tuple(a * b) for a in signs for b in signs} == {tuple(s) for s in signs}  # a group
-    with pytest.raises(ValueError, match='position_dim'):
+    with pytest.raises(ValueError, match='half turns'):
         half_turns(4)
 
 
