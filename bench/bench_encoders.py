@@ -14,8 +14,11 @@ recipe derives for the equivariant encoder only with an arena) is timed in the s
 
 Every figure is printed with its ratio to flat in the same scenario. A 2D heading scenario
 times constant-speed steering (``policy.speed``, ``policy.turn_limit``: core/steering.py) on
-the recipe's equivariant encoder, against the same encoder unsteered. One thread, as the agents
-and the recipe (``training.threads: 1``) run.
+the recipe's equivariant encoder, against the same encoder unsteered; the 3D arena scenario
+times the equivariant encoder seeing the coordinate axes (``policy.axes``, which the recipe
+derives with an arena), averaged over all half turns and over the half turn about z alone
+(``symmetric: z``), against the same encoder without the axes. One thread, as the agents and
+the recipe (``training.threads: 1``) run.
 """
 
 from __future__ import annotations
@@ -92,9 +95,9 @@ HEADINGS = scenario(2, 'position_heading', 'velocity', None)
 STEERING = {'speed': 1.0, 'turn_limit': 0.15}
 
 
-def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int, **steering):
+def measure(ref: str, encoder: str, symmetric, k: int, repeats: int, **extra):
     torch.manual_seed(0)
-    policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric, **steering))
+    policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric, **extra))
     d = policy.state_dim
     module = scripted(policy)
     out = {}
@@ -104,7 +107,7 @@ def measure(ref: str, encoder: str, symmetric: bool, k: int, repeats: int, **ste
             out[f'command, {rows} robot(s) (us)'] = 1e6 * median_seconds(lambda: module(Y, mask), repeats)
     # training: the trainer's k is the training swarm's size (10 rows), k = 10 for both encoders
     train = KNODEPolicy(
-        PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric, **steering)
+        PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric, **extra)
     ).train()
     Y, mask = torch.randn(2048, 10, d), torch.ones(2048, 10)
     target = torch.randn(2048, train.command_dim)
@@ -143,6 +146,18 @@ def main(argv=None) -> None:
         'equivariant + steering': measure(HEADINGS, 'equivariant', False, args.k, args.repeats, **STEERING),
     }
     table(rows, 'equivariant')
+    arena = SCENARIOS['3D position_velocity, acceleration, arena']
+    print(f'\n3D position_velocity, acceleration, arena: the axes (k = {args.k} at run time, 10 in training)')
+    rows = {
+        'equivariant + symmetric': measure(arena, 'equivariant', True, args.k, args.repeats),
+        'equivariant + axes + symmetric': measure(
+            arena, 'equivariant', True, args.k, args.repeats, axes=True
+        ),
+        'equivariant + axes + symmetric z': measure(
+            arena, 'equivariant', 'z', args.k, args.repeats, axes=True
+        ),
+    }
+    table(rows, 'equivariant + symmetric')
 
 
 def table(rows, base_label: str) -> None:
