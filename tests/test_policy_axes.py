@@ -266,3 +266,24 @@ def test_the_recipe_keeps_the_half_turns_that_keep_the_datas_senses_of_rotation(
     )
     how = derived['policy.symmetric']['how']
     assert (named in how) if named else ('turn one way' not in how)
+
+
+def test_an_explicit_half_turn_axis_with_the_datas_scenario_is_checked_against_that_scenario():
+    """``--set policy.symmetric=z`` with the recipe (``scenario: auto``): valid for 3D data,
+    refused for 2D data naming the field, once the data's scenario is known."""
+    room = KINDS[0][0]
+    cfg, _ = resolve_config(
+        load_config(RECIPE, {'policy.symmetric': 'z'}),
+        [_rings(lambda i, rng: rng.normal(size=3))],
+        json.dumps(room.to_dict(), sort_keys=True),
+        room.dt,
+    )
+    assert cfg['policy']['symmetric'] == 'z'
+    flat = KINDS[3][0]
+    with pytest.raises(ConfigError, match='symmetric'):
+        resolve_config(
+            load_config(RECIPE, {'policy.symmetric': 'z'}),
+            [_rings(lambda i, rng: [0.0, 0.0, 1.0])[..., :2]],
+            json.dumps(flat.to_dict(), sort_keys=True),
+            flat.dt,
+        )

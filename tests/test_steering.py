@@ -279,3 +279,26 @@ def test_states_without_a_heading_leave_steering_unset():
     )
     assert cfg['policy']['speed'] is None and cfg['policy']['turn_limit'] is None
     assert 'no heading' in derived['policy.speed']['how']
+
+
+def test_an_explicit_turn_limit_with_the_datas_scenario_is_checked_against_that_scenario():
+    """With ``scenario: auto`` (the recipe's) an explicit speed or turn limit is valid or not
+    only once the data's scenario is known: accepted for heading data (used as given, the other
+    still derived), refused for data without a heading, naming the field."""
+    pending = load_config(RECIPE, {'policy.turn_limit': 0.15})
+    ref = json.dumps(heading_scenario().to_dict(), sort_keys=True)
+    cfg, derived = resolve_config(pending, [circling([0.8] * 40, 0.05)], ref, 0.1)
+    assert cfg['policy']['turn_limit'] == 0.15 and 'policy.turn_limit' not in derived
+    assert cfg['policy']['speed'] == pytest.approx(0.8)
+    spec = scenario_from_dict(
+        dict(name='p', dimensions=2, state='position', command='velocity', dt=0.1, arena=None)
+    )
+    with pytest.raises(ConfigError, match=r'turn_limit'):
+        resolve_config(
+            load_config(RECIPE, {'policy.turn_limit': 0.15}),
+            [circling([1.0] * 20, 0.05)[..., :2]],
+            json.dumps(spec.to_dict(), sort_keys=True),
+            0.1,
+        )
+    with pytest.raises(ConfigError, match=r'speed'):  # what no scenario accepts: before any training
+        resolve_config(load_config(RECIPE, {'policy.speed': 'fast'}), [circling([0.8] * 40, 0.05)], ref, 0.1)

@@ -10,7 +10,7 @@ import copy
 import math
 import os
 from dataclasses import dataclass, fields
-from typing import Any, Dict, List, Optional, Union
+from typing import Any, Dict, List, Optional, Sequence, Union
 
 from knode_swarm_ros.core import DEFAULTS, KNODEPolicy, PolicyConfig, get_scenario
 
@@ -416,13 +416,20 @@ class PendingConfig:
     where: str = 'config'
 
 
-def _placeholders(raw: Dict[str, Any], scenario: Any) -> Dict[str, Any]:
-    """``raw`` with ``scenario`` and every ``auto`` field replaced by its default, for validation."""
+#: Policy fields whose valid values depend on the scenario's state or dimensions: with
+#: ``scenario: auto`` they are checked once the data's scenario is known, not against a stand-in.
+SCENARIO_FIELDS = ('policy.speed', 'policy.turn_limit', 'policy.symmetric')
+
+
+def _placeholders(raw: Dict[str, Any], scenario: Any, unchecked: Sequence[str] = ()) -> Dict[str, Any]:
+    """``raw`` with ``scenario`` and every ``auto`` field (and those ``unchecked``) replaced by its
+    default, for validation."""
     out = copy.deepcopy(raw)
     out['scenario'] = scenario
-    for dotted in auto_fields(raw):
+    for dotted in set(auto_fields(raw)) | set(unchecked):
         section, key = dotted.split('.')
-        del out[section][key]
+        if isinstance(out.get(section), dict):
+            out[section].pop(key, None)
     return out
 
 
@@ -504,7 +511,10 @@ def load_config(
         if raw.get('scenario') == AUTO or auto:
             # validate what is given now; the scenario-dependent checks run again once resolved
             scenario = raw.get('scenario')
-            normalise_config(_placeholders(raw, 'flock2d' if scenario == AUTO else scenario))
+            if scenario == AUTO:
+                normalise_config(_placeholders(raw, 'flock2d', SCENARIO_FIELDS))
+            else:
+                normalise_config(_placeholders(raw, scenario))
             return PendingConfig(raw, auto, f'config file {path}')
         return normalise_config(raw)
     except ConfigError as exc:
