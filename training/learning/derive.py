@@ -306,8 +306,9 @@ def derive(
         put('policy.axes', False, f"false: the {encoder} encoder sees the offsets' coordinates already")
     averaged = ' (the network is averaged over the half turns about the axes)'
     if spec.arena is not None:
-        turn, why = True, 'true: the half turns about the axes map the arena onto itself' + averaged
-        turn, why = _keep_senses(turn, why, trajectories, spec, dt)
+        turn, why = _keep_senses(
+            'true: the half turns about the axes map the arena onto itself' + averaged, trajectories, spec, dt
+        )
     elif encoder == 'equivariant':
         if not rotate and not pol.get('axes'):  # it could not learn the law's preferred direction
             raise ValueError(
@@ -324,13 +325,13 @@ def derive(
             ),
         )
     else:
-        turn = bool(cfg['augment']['rotate'])
+        turn = rotate
         why = 'as augment.rotate: ' + (
             'the law is taken to be rotation invariant' if turn else 'rotations are off'
         )
         why += averaged
         if turn:
-            turn, why = _keep_senses(turn, why, trajectories, spec, dt)
+            turn, why = _keep_senses(why, trajectories, spec, dt)
     put('policy.symmetric', turn, why)
     return cfg, record
 
@@ -355,20 +356,20 @@ def senses_of_rotation(trajectories: Sequence[np.ndarray], spec: Scenario, dt: f
     return np.concatenate(out)
 
 
-def _keep_senses(turn, why: str, trajectories, spec: Scenario, dt: float):
-    """``policy.symmetric`` (all half turns) narrowed to those that keep the data's preferred
-    senses of rotation: where the trajectories turn one way about a coordinate axis (the mean of
+def _keep_senses(why: str, trajectories, spec: Scenario, dt: float):
+    """``policy.symmetric`` true (all half turns, said so by ``why``) narrowed to those that keep
+    the data's preferred senses of rotation: where the trajectories turn one way about a coordinate axis (the mean of
     :func:`senses_of_rotation` beyond 3 standard errors and 0.1), the half turns about the other
     axes, which reverse that sense, are left out: only the one about that axis (one preferred
     axis) or none (more)."""
     spin = senses_of_rotation(trajectories, spec, dt)
     if len(spin) < 3:
-        return turn, why
+        return True, why
     mean = spin.mean(axis=0)
     se = spin.std(axis=0, ddof=1) / math.sqrt(len(spin))
     preferred = [axis for axis, m, e in zip('xyz', mean, se) if abs(m) > max(3.0 * e, 0.1)]
     if not preferred:
-        return turn, why
+        return True, why
     said = ', '.join(f'{axis}: {m:+.3g} ± {e:.2g}' for axis, m, e in zip('xyz', mean, se))
     seen = (
         f'the data turn one way about {" and ".join(preferred)} (mean signed rotation over {len(spin)} '
