@@ -180,6 +180,46 @@ def test_several_files_make_one_dataset_with_episode_ids(tmp_path, capsys, walke
     assert [tm['episode'] for tm in g.meta['trajectories']] == [0, 0, 1, 1, 1]
 
 
+def test_smoothed_headings_are_the_direction_of_the_last_step_across_a_turn(tmp_path, capsys):
+    """A constant-speed swarm turning by 0.6 rad at t = 1 s, recorded at 120 Hz: with the smoother
+    (the default) every heading is the direction of the step that ended at its frame, as the
+    first-order rollout defines it, at the turn too (the smoothed velocity there points half way)."""
+    (tmp_path / 'fish.yaml').write_text(
+        'name: fish\ndimensions: 2\nstate: position_heading\ncommand: velocity\ndt: 0.05\narena: null\n'
+    )
+    angle0, turn = np.array([0.3, 2.0, -1.2]), 0.6
+
+    def unit(a):
+        return np.stack([np.cos(a), np.sin(a)], axis=-1)
+
+    def path(t):
+        before, after = np.minimum(t, 1.0), np.maximum(t - 1.0, 0.0)
+        return (
+            START[None]
+            + before[:, None, None] * unit(angle0)[None]
+            + after[:, None, None] * unit(angle0 + turn)[None]
+        )
+
+    t = np.arange(241) / 120.0
+    write_csv(tmp_path / 'fish.csv', t, path(t))
+    rc, out, err = run(
+        capsys,
+        tmp_path / 'fish.csv',
+        '--scenario',
+        tmp_path / 'fish.yaml',
+        '--out',
+        tmp_path / 'f.npz',
+        '--smooth',
+        'rts',
+    )
+    assert rc == 0, err
+    states = load_trajectories(tmp_path / 'f.npz').states[0]  # [41, 3, 4], frame k at k dt
+    frames = np.arange(states.shape[0])
+    want = unit(angle0[None] + np.where(frames[:, None] > 20, turn, 0.0))  # frame 20 ends at t = 1 s
+    np.testing.assert_allclose(states[..., :2], path(frames * 0.05), atol=1e-6)  # float32 file
+    np.testing.assert_allclose(states[..., 2:], want, atol=1e-4)
+
+
 def test_single_frames_are_initial_conditions(tmp_path, capsys):
     pos = START[None]
     write_csv(tmp_path / 'i0.csv', [0.0], pos, extra=SPEED[None], columns=('t', 'id', 'x', 'y', 'vx', 'vy'))

@@ -77,9 +77,9 @@ def test_the_exact_tracks_of_a_law_import_as_the_law(tmp_path):
 
 def test_a_heading_law_recorded_as_positions_imports_near_the_law(tmp_path):
     """couzin2d as motion capture records it (positions only, 120 Hz): without noise the importer
-    derives headings within a few hundredths of a radian of the law's (its smoother rounds the
-    turns); with 3 mm of noise it estimates the noise and the headings stay near; another law's
-    swarms are far off."""
+    derives headings within a hundredth of a radian of the law's (the steps of the smoothed
+    positions, which round the law's kinks a little); with 3 mm of noise it estimates the noise and
+    the headings stay within a few hundredths; another law's swarms are far off."""
     from training.import_tracks import main as import_main
     from training.studies.custom_laws import write_noisy_tracks
 
@@ -95,9 +95,9 @@ def test_a_heading_law_recorded_as_positions_imports_near_the_law(tmp_path):
         assert import_main([*csvs, '--scenario', str(scen), '--out', str(data)]) == 0
         result[noise] = import_against_law(law, str(data), 2, 6, 4)
         assert np.isnan(result[noise]['velocity_rms'])  # no velocity in the state
-    assert result[0.0]['position_rms'] < 0.002 and result[0.0]['heading_rms'] < 0.06
+    assert result[0.0]['position_rms'] < 0.002 and result[0.0]['heading_rms'] < 0.015
     assert 0.002 < result[0.003]['noise_estimate'] < 0.004
-    assert result[0.003]['position_rms'] < 0.003 and result[0.003]['heading_rms'] < 0.1
+    assert result[0.003]['position_rms'] < 0.003 and result[0.003]['heading_rms'] < 0.04
     wrong = import_against_law(law, str(tmp_path / '0.0.npz'), 2, 6, 5)
     assert wrong['position_rms'] > 0.1 and wrong['heading_rms'] > 0.5
 

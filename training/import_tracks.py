@@ -33,7 +33,13 @@ from knode_swarm_ros.core.errors import KnodeError
 from knode_swarm_ros.core.scenarios import Scenario, get_scenario, parse_scenario_argument
 from knode_swarm_ros.core.trajectory import TrajectoryError, save_trajectories
 from training.data.bags.options import ImportResult
-from training.data.derive import SMOOTHER, derive_states, noise_lines, smooth_episode, uses_smoother
+from training.data.derive import (
+    derive_states,
+    noise_lines,
+    smooth_episode,
+    smoother_derivation,
+    uses_smoother,
+)
 from training.data.timeline import segments, stack_episodes, timeline
 from training.data.track_files import read_track_file, single_frame
 from training.data.tracks import (
@@ -75,7 +81,7 @@ def _derivation(spec: Scenario, given: str, opts: ResampleOptions) -> Dict[str, 
     elif given == 'heading':
         how = 'the given hx, hy[, hz], linearly interpolated and renormalised'
     elif uses_smoother(opts):
-        how = SMOOTHER + ('' if key == 'velocity' else ' (its direction)')
+        how = smoother_derivation(opts)
     elif key == 'velocity':
         how = 'central differences of the resampled positions (second-order one-sided at segment ends)'
     else:

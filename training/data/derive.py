@@ -25,6 +25,7 @@ __all__ = [
     'smooth_episode',
     'noise_lines',
     'SMOOTHER',
+    'smoother_derivation',
 ]
 
 #: How the smoother derives, in the trajectory file's ``meta.derivation``.
@@ -32,6 +33,13 @@ SMOOTHER = (
     "Rauch-Tung-Striebel smoother, constant-acceleration model, at the samples' stamps; noise level "
     'estimated from the data (meta.noise), process noise by maximum likelihood'
 )
+
+
+def smoother_derivation(opts: ResampleOptions) -> str:
+    """How the smoother derives the state's velocity or heading, for ``meta.derivation``."""
+    if get_scenario(opts.scenario).velocity is not None:
+        return SMOOTHER
+    return f'direction of {opts.heading_diff} differences of the smoothed positions on the grid ({SMOOTHER})'
 
 
 def finite_difference(p: np.ndarray, dt: float, scheme: str) -> np.ndarray:
@@ -155,6 +163,9 @@ def derive_states(
             pos[:, i], vel[:, i] = r.smoothed.at(seg_t)
         if spec.velocity is not None:
             return np.concatenate([pos, vel], axis=2), None
+        # a heading is the direction of the last command (p += u dt), so the positions' own step:
+        # the smoothed velocity at a turn already leans towards the next command
+        vel = finite_difference(pos, dt, opts.heading_diff)
     else:
         pos, vel = interp(lambda r: r.pos), None
     if spec.state == 'position':  # nothing to derive

@@ -70,8 +70,9 @@ def import_against_law(law: Law, data, trajectories: int, robots: int, seed: int
         if spec.velocity is not None:
             dv.append(states[..., spec.velocity] - vel)
         if spec.heading is not None:
-            # the law's heading is the direction of its last command: the step that ends at or after t
-            k = np.clip(np.ceil(times / spec.dt - 1e-9).astype(int), 1, law.steps)
+            # the law's state whose step is nearest t: the grid samples the law's steps, late by
+            # the stamps' offset, and a heading is the direction of the step that ended there
+            k = np.clip(np.round(times / spec.dt).astype(int), 1, law.steps)
             h, ref = states[..., spec.heading], truth[traj['episode']][k][..., spec.heading]
             cos = (h * ref).sum(-1) / np.maximum(
                 np.linalg.norm(h, axis=-1) * np.linalg.norm(ref, axis=-1), 1e-12

@@ -9,7 +9,7 @@ import numpy as np
 
 from knode_swarm_ros.core import get_scenario
 
-from ..derive import SMOOTHER, noise_lines, uses_smoother
+from ..derive import noise_lines, smoother_derivation, uses_smoother
 from ..timeline import Timeline
 from .options import FORMAT_VERSION, ImportOptions
 from .robots import Robot
@@ -66,7 +66,7 @@ def derivation(opts: ImportOptions, notes: List[str]) -> Dict[str, Any]:
         return {'nothing': 'the state is the position alone'}
     if uses_smoother(opts):
         derived = {
-            spec.state.split('_')[1]: SMOOTHER + ('' if spec.velocity is not None else ' (its direction)'),
+            spec.state.split('_')[1]: smoother_derivation(opts),
             'smoothing': {'method': 'rts', 'applies_to': "positions and velocities, at the samples' stamps"},
         }
         if spec.heading is not None:
