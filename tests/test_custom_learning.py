@@ -246,6 +246,19 @@ def test_drones_spring_to_their_spacing_swirl_and_stay_off_the_walls():
     assert np.all(np.linalg.norm(crowd, axis=-1) <= 0.6 + 1e-12)
 
 
+def test_drones_in_open_space_swirl_as_in_the_room_and_anywhere():
+    """drones3d: drones3d_arena without its walls: far from any wall the same commands, near where
+    the room's wall was none, and the same swarm 100 m away commanded alike (no arena)."""
+    from training.studies.laws import drones3d, drones3d_arena
+
+    rng = np.random.default_rng(3)
+    middle = rng.uniform(-1.0, 1.0, (2, 6, 3))  # farther than 0.5 m from the room's walls
+    np.testing.assert_array_equal(drones3d(middle), drones3d_arena(middle))
+    top = np.array([[[0, 0, 2.3], [0, 0, -1.0]]])  # beyond reach of each other
+    assert drones3d_arena(top)[0, 0, 2] < 0.0 and np.allclose(drones3d(top), 0.0)  # no wall to leave
+    np.testing.assert_allclose(drones3d(middle + 100.0), drones3d(middle), atol=1e-9)
+
+
 def test_the_law_at_several_sizes_reads_as_the_study_reads_it():
     """law_sizes: the order parameters are the evaluation's on the same starts; the share of
     robot-frames with every other within reach is 1 for a reach beyond the swarm and 0 for one

@@ -268,6 +268,37 @@ def test_the_recipe_keeps_the_half_turns_that_keep_the_datas_senses_of_rotation(
     assert (named in how) if named else ('turn one way' not in how)
 
 
+@pytest.mark.parametrize('encoder', ['equivariant', 'set'])
+@pytest.mark.parametrize(
+    'axis_of,rotate,symmetric',
+    [
+        (lambda i, rng: [0.0, 0.0, 1.0], False, 'z'),  # a swirl about the vertical: its half turn stays
+        (lambda i, rng: [1.0, 0.0, 1.0], False, False),
+        (lambda i, rng: rng.normal(size=3), True, None),  # isotropic: rotations are a symmetry
+    ],
+    ids=['z', 'x-and-z', 'isotropic'],
+)
+def test_in_open_space_a_preferred_sense_turns_the_rotations_off(axis_of, rotate, symmetric, encoder):
+    """Without an arena the recipe rotates the data at random, unless the data turn one way about
+    an axis: a rotation would turn that sense away. Then the equivariant encoder sees the axes and
+    the half turn about the one preferred axis stays (set: the same half turn); isotropic data keep
+    the rotations (equivariant: exact already, no average; set: every half turn)."""
+    space = spec(3, 'position', 'velocity')
+    cfg, derived = resolve_config(
+        load_config(RECIPE, {'policy.encoder': encoder}),
+        [_rings(axis_of)],
+        json.dumps(space.to_dict(), sort_keys=True),
+        space.dt,
+    )
+    assert cfg['augment']['rotate'] is rotate
+    assert ('turn one way' in derived['augment.rotate']['how']) is not rotate
+    assert cfg['policy']['axes'] is (encoder == 'equivariant' and not rotate)
+    if symmetric is None:
+        symmetric = encoder == 'set'
+    got = cfg['policy']['symmetric']
+    assert got is symmetric if isinstance(symmetric, bool) else got == symmetric
+
+
 def test_an_explicit_half_turn_axis_with_the_datas_scenario_is_checked_against_that_scenario():
     """``--set policy.symmetric=z`` with the recipe (``scenario: auto``): valid for 3D data,
     refused for 2D data naming the field, once the data's scenario is known."""

@@ -36,6 +36,8 @@ derived, in order (later rules use earlier values, derived or given):
   heading and the next command (unbounded if that reaches pi); else unset (the command is free);
 * ``noise.variance``: (2 % of the smaller input scale)^2;
 * ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
+  false too where the data turn one way about a coordinate axis (:func:`preferred_senses`: a
+  swarm that swirls anticlockwise about the vertical, which a rotation would turn away);
 * ``policy.axes`` (``equivariant`` only; false for the others, which see the offsets' coordinates):
   true where rotations are no symmetry of the law (``augment.rotate`` false: an arena, or a law
   declared so), the pair terms then see the coordinate axes;
@@ -44,8 +46,8 @@ derived, in order (later rules use earlier values, derived or given):
   vertical keeps the half turn about it alone, :func:`senses_of_rotation`): without an arena
   as ``augment.rotate`` (a law with a preferred direction sets that false), with one true (the
   half turns map the arena onto itself); false for ``equivariant`` without an arena (exact under
-  every rotation already, or seeing the axes; with ``augment.rotate: false`` and ``policy.axes:
-  false`` it is refused, naming the encoder).
+  every rotation already, or seeing the axes, where the half turn about one preferred axis may stay;
+  with ``augment.rotate: false`` and ``policy.axes: false`` it is refused, naming the encoder).
 """
 
 from __future__ import annotations
@@ -285,13 +287,23 @@ def derive(
         float(f'{std * std:.6g}'),
         f'(2 % of the smaller input scale)^2: std {std:.4g} on every input entry',
     )
-    put(
-        'augment.rotate',
-        spec.arena is None,
-        'true: no arena, rotations are a symmetry of the scenario'
-        if spec.arena is None
-        else 'false: the arena breaks rotational symmetry',
-    )
+    senses = preferred_senses(trajectories, spec, dt)
+    if spec.arena is not None:
+        put('augment.rotate', False, 'false: the arena breaks rotational symmetry')
+    elif senses[0]:
+        put(
+            'augment.rotate',
+            False,
+            f'false: {senses[1]}; a rotation would turn that sense away, so rotations are no symmetry '
+            'of the law',
+        )
+    else:
+        put(
+            'augment.rotate',
+            True,
+            'true: no arena, rotations are a symmetry of the scenario'
+            + (', and the data turn no one way about any axis' if spec.position_dim == 3 else ''),
+        )
     rotate = bool(cfg['augment']['rotate'])
     if encoder == 'equivariant':
         put(
@@ -307,7 +319,7 @@ def derive(
     averaged = ' (the network is averaged over the half turns about the axes)'
     if spec.arena is not None:
         turn, why = _keep_senses(
-            'true: the half turns about the axes map the arena onto itself' + averaged, trajectories, spec, dt
+            'true: the half turns about the axes map the arena onto itself' + averaged, senses
         )
     elif encoder == 'equivariant':
         if not rotate and not pol.get('axes'):  # it could not learn the law's preferred direction
@@ -316,22 +328,20 @@ def derive(
                 'augment.rotate is false (a law that rotations change, without an arena): set policy.axes '
                 'true (or auto), or use policy.encoder set or flat'
             )
-        turn, why = (
-            False,
-            (
-                'false: the equivariant encoder is exactly rotation-equivariant already'
-                if rotate
-                else 'false: no arena, and the law is no rotation invariant (policy.axes)'
-            ),
-        )
+        if rotate:
+            turn, why = False, 'false: the equivariant encoder is exactly rotation-equivariant already'
+        else:  # the axes are seen: the half turn about a preferred axis alone may stay
+            turn, why = _keep_senses('', senses)
+            if turn is True:
+                turn, why = False, 'false: no arena, and the law is no rotation invariant (policy.axes)'
     else:
         turn = rotate
         why = 'as augment.rotate: ' + (
             'the law is taken to be rotation invariant' if turn else 'rotations are off'
         )
         why += averaged
-        if turn:
-            turn, why = _keep_senses(why, trajectories, spec, dt)
+        if turn or senses[0]:  # rotations off for a preferred sense: its own half turn stays
+            turn, why = _keep_senses(why, senses)
     put('policy.symmetric', turn, why)
     return cfg, record
 
@@ -356,25 +366,33 @@ def senses_of_rotation(trajectories: Sequence[np.ndarray], spec: Scenario, dt: f
     return np.concatenate(out)
 
 
-def _keep_senses(why: str, trajectories, spec: Scenario, dt: float):
-    """``policy.symmetric`` true (all half turns, said so by ``why``) narrowed to those that keep
-    the data's preferred senses of rotation: where the trajectories turn one way about a coordinate axis (the mean of
-    :func:`senses_of_rotation` beyond 3 standard errors and 0.1), the half turns about the other
-    axes, which reverse that sense, are left out: only the one about that axis (one preferred
-    axis) or none (more)."""
+def preferred_senses(trajectories: Sequence[np.ndarray], spec: Scenario, dt: float) -> Tuple[List[str], str]:
+    """The coordinate axes about which the data turn one way (the mean of :func:`senses_of_rotation`
+    over the trajectories beyond 3 standard errors and 0.1), and the sentence that says so; none
+    in 2D (a rotation keeps every sense there) or with fewer than three trajectories."""
     spin = senses_of_rotation(trajectories, spec, dt)
     if len(spin) < 3:
-        return True, why
+        return [], ''
     mean = spin.mean(axis=0)
     se = spin.std(axis=0, ddof=1) / math.sqrt(len(spin))
     preferred = [axis for axis, m, e in zip('xyz', mean, se) if abs(m) > max(3.0 * e, 0.1)]
     if not preferred:
-        return True, why
+        return [], ''
     said = ', '.join(f'{axis}: {m:+.3g} ± {e:.2g}' for axis, m, e in zip('xyz', mean, se))
-    seen = (
+    return preferred, (
         f'the data turn one way about {" and ".join(preferred)} (mean signed rotation over {len(spin)} '
         f'trajectories, ± standard error: {said})'
     )
+
+
+def _keep_senses(why: str, senses: Tuple[List[str], str]):
+    """``policy.symmetric`` true (all half turns, said so by ``why``) narrowed to those that keep
+    the data's preferred senses (:func:`preferred_senses`): the half turns about the other axes,
+    which reverse a sense, are left out: only the one about that axis (one preferred axis) or none
+    (more)."""
+    preferred, seen = senses
+    if not preferred:
+        return True, why
     if len(preferred) == 1:
         return preferred[0], (
             f'{preferred[0]}: {seen}; the half turns about the other axes would reverse it: the network is '

@@ -1,4 +1,4 @@
-"""Seven swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+"""Eight swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
 (``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
 swarms of your own").
 
@@ -27,6 +27,9 @@ swarms of your own").
   the neighbours' centroid, walls that push back, speed capped.
   Both added with the recipe fixed, as the two scenario kinds no law had covered (a heading in an
   arena; first order in 3D and in an arena).
+* ``drones3d``: the same drones in open space (no walls): the swirl's preferred vertical is then
+  the law's alone, which no scenario field states; added with the recipe fixed, to check that the
+  recipe reads it from the data (docs/scenarios.md, "A preferred sense in open space").
 
 Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
 it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
@@ -234,6 +237,10 @@ def drones3d_arena(
     return _clip_norm(u, v_max)
 
 
+def drones3d(z: np.ndarray) -> np.ndarray:
+    return drones3d_arena(z, w=np.inf)
+
+
 def starlings3d(
     z: np.ndarray,
     speed: float = 1.0,
@@ -300,6 +307,7 @@ LAWS: Dict[str, Law] = {
         0.0,
         400,
     ),
+    'drones3d': Law('drones3d', _spec('drones3d', 3, 'position', 'velocity'), drones3d, 0.4, 0.0, 400),
 }
 
 
