@@ -37,7 +37,7 @@ derived, in order (later rules use earlier values, derived or given):
 * ``noise.variance``: (2 % of the smaller input scale)^2;
 * ``augment.rotate``: true without an arena (rotations are a symmetry of the scenario), else false;
   false too where the data turn one way about a coordinate axis (:func:`preferred_senses`: a
-  swarm that swirls anticlockwise about the vertical, which a rotation would turn away);
+  swarm that swirls one way about the vertical, which a rotation would turn away);
 * ``policy.axes`` (``equivariant`` only; false for the others, which see the offsets' coordinates):
   true where rotations are no symmetry of the law (``augment.rotate`` false: an arena, or a law
   declared so), the pair terms then see the coordinate axes;
