@@ -226,6 +226,58 @@ def test_symmetric_names_an_axis_only_in_3d_and_exports_with_it(tmp_path):
     assert loaded.meta['config']['symmetric'] == 'z'
 
 
+def test_the_inversion_keeps_a_swirl_cancels_a_constant_push_and_exports(tmp_path):
+    """A hand-set network of two parts, the swirl about z (above) and a push along z from each
+    neighbour (a hidden unit reading log(1 + d), the coefficient of e_z): averaged over the half
+    turn about z the push survives (it sums to a drift, the larger the denser), with the inversion added
+    (``inversion=True``) it cancels and the swirl stays exactly; a trained network with both is
+    odd (u(-Y) = -u(Y)) and commutes with the half turn about z; 2D refuses it (its half turn is
+    the inversion); TorchScript and ONNX agree and knode.json records it."""
+    scenario, _, d = KINDS[0]
+    Y, mask = batch(d)
+    out = {}
+    for inversion in (False, True):
+        policy = make(
+            scenario,
+            hidden=3,
+            collision=False,
+            wall=False,
+            command_limit=1e6,
+            symmetric='z',
+            inversion=inversion,
+        )
+        enc, e = policy.encoder, 1e-3
+        first = 1 + DISTANCE_BASIS
+        with torch.no_grad():
+            for param in enc.parameters():
+                param.zero_()
+            enc.pair.weight[0, first], enc.pair.weight[1, first + 1] = e, e
+            enc.pair_out.weight[2, 0], enc.pair_out.weight[1, 1] = 1.0 / e, -1.0 / e
+            swirl = policy(Y, mask)
+            enc.pair.weight[2, 0] = 1.0  # log(1 + d / scale) > 0
+            enc.pair_out.weight[3, 2] = 1.0  # e_z, in the sum channel
+            out[inversion] = (swirl, policy(Y, mask))
+    swirl, both = out[False]
+    torch.testing.assert_close(both[:, :2], swirl[:, :2])
+    assert torch.all(both[:, 2] - swirl[:, 2] > 0.1)  # up, from every row
+    swirl_i, both_i = out[True]
+    torch.testing.assert_close(swirl_i, swirl)
+    torch.testing.assert_close(both_i, swirl)
+
+    policy = make(scenario, symmetric='z', inversion=True)
+    s = torch.tensor(half_turns(3, 'z')[1])
+    with torch.no_grad():
+        torch.testing.assert_close(policy.network(-Y, mask), -policy.network(Y, mask), rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(
+            policy.network(Y * s, mask), policy.network(Y, mask) * s, rtol=1e-5, atol=1e-6
+        )
+    with pytest.raises(ValueError, match='inversion'):
+        PolicyConfig(KINDS[2][0], encoder='equivariant', inversion=True)
+    scenario, _, d = KINDS[1]
+    loaded = assert_exports_equal(make(scenario, symmetric='z', inversion=True), tmp_path / 'i.pt', *batch(d))
+    assert loaded.meta['config']['inversion'] is True
+
+
 def _rings(axis_of, trajectories=12, robots=8, steps=40, seed=0):
     """``[N, T, n, 3]`` robots on rings turning about ``axis_of(i)`` (a unit vector) at 1 rad/s,
     each ring's centre and phase random, inside the room."""
@@ -266,6 +318,7 @@ def test_the_recipe_keeps_the_half_turns_that_keep_the_datas_senses_of_rotation(
     )
     how = derived['policy.symmetric']['how']
     assert (named in how) if named else ('turn one way' not in how)
+    assert cfg['policy']['inversion'] is (expected is not True)  # unless all three half turns stay
 
 
 @pytest.mark.parametrize('encoder', ['equivariant', 'set'])
@@ -281,8 +334,9 @@ def test_the_recipe_keeps_the_half_turns_that_keep_the_datas_senses_of_rotation(
 def test_in_open_space_a_preferred_sense_turns_the_rotations_off(axis_of, rotate, symmetric, encoder):
     """Without an arena the recipe rotates the data at random, unless the data turn one way about
     an axis: a rotation would turn that sense away. Then the equivariant encoder sees the axes and
-    the half turn about the one preferred axis stays (set: the same half turn); isotropic data keep
-    the rotations (equivariant: exact already, no average; set: every half turn)."""
+    the half turn about the one preferred axis stays, with the inversion (set: the same half turn);
+    isotropic data keep the rotations (equivariant: exact already, no average; set: every half
+    turn)."""
     space = spec(3, 'position', 'velocity')
     cfg, derived = resolve_config(
         load_config(RECIPE, {'policy.encoder': encoder}),
@@ -293,6 +347,8 @@ def test_in_open_space_a_preferred_sense_turns_the_rotations_off(axis_of, rotate
     assert cfg['augment']['rotate'] is rotate
     assert ('turn one way' in derived['augment.rotate']['how']) is not rotate
     assert cfg['policy']['axes'] is (encoder == 'equivariant' and not rotate)
+    # the half turns kept leave a constant along an axis: the inversion cancels it
+    assert cfg['policy']['inversion'] is (encoder == 'equivariant' and not rotate)
     if symmetric is None:
         symmetric = encoder == 'set'
     got = cfg['policy']['symmetric']

@@ -19,7 +19,9 @@
   drifts as a whole. The average of a constant over the half turns is zero. ``symmetric='z'``
   (3D; or ``'x'``, ``'y'``) averages over the identity and the half turn about that axis only:
   a law that swirls one way about the vertical keeps its sense (the half turns about x and y
-  reverse it).
+  reverse it), but a constant along z survives that average. ``inversion=True`` (3D) adds the
+  point inversion p -> -p (u(-Y) = -u(Y)), which keeps every sense of rotation and averages any
+  constant to zero: the parity the equivariant encoder has without the axes.
 * knowledge terms from :mod:`knode_swarm_ros.core.knowledge`, with trainable gains;
   ``potential='paper'`` (default: the paper's 1/d^2 potential of the closest neighbour, cut at
   d0) or ``'continuous'`` (vanishing continuously at d0, summed over neighbours).
@@ -114,6 +116,7 @@ class PolicyConfig:
     speed: Optional[float] = None
     turn_limit: Optional[float] = None
     axes: bool = False
+    inversion: bool = False
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
@@ -132,6 +135,8 @@ class PolicyConfig:
             or (self.symmetric in TURN_AXES and spec.position_dim == 3),
             # the other encoders see the offsets' coordinates already
             'axes': self.axes is False or (self.axes is True and self.encoder == 'equivariant'),
+            # in 2D the half turn about the origin is the inversion already
+            'inversion': self.inversion is False or (self.inversion is True and spec.position_dim == 3),
             'potential': self.potential in ('paper', 'continuous'),
             'command_limit': self.command_limit > 0,
             'collision_d0': self.collision_d0 > 0,
@@ -231,12 +236,16 @@ class KNODEPolicy(nn.Module):
             self.net = nn.Sequential(
                 nn.Linear(n_in, config.hidden), nn.Tanh(), nn.Linear(config.hidden, spec.command_dim)
             )
-        self.symmetric = config.symmetric is not False
-        # the signs of each half turn on every command and state entry (positions, then velocities
-        # or headings), flattened row by row: ONNX export takes flat lists of constants only
-        turns = half_turns(
-            spec.position_dim, None if isinstance(config.symmetric, bool) else config.symmetric
+        turns = (
+            half_turns(spec.position_dim, None if isinstance(config.symmetric, bool) else config.symmetric)
+            if config.symmetric is not False
+            else [[1.0] * spec.position_dim]
         )
+        if config.inversion:  # p -> -p keeps every sense of rotation and averages any constant to zero
+            turns = turns + [[-s for s in t] for t in turns]
+        self.symmetric = len(turns) > 1
+        # the signs of each element on every command and state entry (positions, then velocities
+        # or headings), flattened row by row: ONNX export takes flat lists of constants only
         self.turn_count = len(turns)
         self.command_signs: List[float] = [s for t in turns for s in t]
         self.state_signs: List[float] = [s for t in turns for s in t * (spec.state_dim // spec.position_dim)]

@@ -418,7 +418,7 @@ class PendingConfig:
 
 #: Policy fields whose valid values depend on the scenario's state or dimensions: with
 #: ``scenario: auto`` they are checked once the data's scenario is known, not against a stand-in.
-SCENARIO_FIELDS = ('policy.speed', 'policy.turn_limit', 'policy.symmetric')
+SCENARIO_FIELDS = ('policy.speed', 'policy.turn_limit', 'policy.symmetric', 'policy.inversion')
 
 
 def _placeholders(raw: Dict[str, Any], scenario: Any, unchecked: Sequence[str] = ()) -> Dict[str, Any]:

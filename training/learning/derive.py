@@ -48,6 +48,10 @@ derived, in order (later rules use earlier values, derived or given):
   half turns map the arena onto itself); false for ``equivariant`` without an arena (exact under
   every rotation already, or seeing the axes, where the half turn about one preferred axis may stay;
   with ``augment.rotate: false`` and ``policy.axes: false`` it is refused, naming the encoder).
+* ``policy.inversion``: true in 3D where the equivariant encoder sees the axes and the half turns
+  kept are not all three (a constant along an axis would survive their average and sum, in a
+  denser swarm, into a drift): the average then also runs over p -> -p, which keeps every sense
+  of rotation; false otherwise.
 """
 
 from __future__ import annotations
@@ -82,6 +86,7 @@ DERIVED_FIELDS = (
     'augment.rotate',
     'policy.axes',
     'policy.symmetric',
+    'policy.inversion',
 )
 # A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
 DENSER = 4
@@ -343,6 +348,29 @@ def derive(
         if turn or senses[0]:  # rotations off for a preferred sense: its own half turn stays
             turn, why = _keep_senses(why, senses)
     put('policy.symmetric', turn, why)
+    turn = pol['symmetric']
+    if spec.position_dim == 3 and pol.get('axes') and turn is not True:
+        put(
+            'policy.inversion',
+            True,
+            'true: the pair terms see the axes and the half turns kept '
+            f'({"none" if turn is False else "about " + turn}) leave a constant push along an axis, which a '
+            'swarm denser than the data sums into a drift; the inversion p -> -p keeps every sense of '
+            'rotation and averages it to zero (the parity the encoder has without the axes)',
+        )
+    else:
+        put(
+            'policy.inversion',
+            False,
+            'false: '
+            + (
+                'in 2D the half turn is the inversion'
+                if spec.position_dim == 2
+                else 'the half turns about the three axes average any constant to zero'
+                if turn is True
+                else 'the encoder does not see the axes (without them the equivariant encoder is odd already)'
+            ),
+        )
     return cfg, record
 
 
