@@ -186,6 +186,19 @@ def test_a_law_with_a_direction_and_no_axes_is_refused_naming_both_fields():
         _recipe(KINDS[3][0], **{'augment.rotate': False, 'policy.axes': False})
 
 
+def _swirling(scenario, **overrides):
+    """A policy whose network is the hand-set swirl about z of the test above (knowledge off)."""
+    policy = make(scenario, collision=False, wall=False, command_limit=1e6, **overrides)
+    enc, e = policy.encoder, 1e-3
+    first = 1 + DISTANCE_BASIS
+    with torch.no_grad():
+        for param in enc.parameters():
+            param.zero_()
+        enc.pair.weight[0, first], enc.pair.weight[1, first + 1] = e, e
+        enc.pair_out.weight[2, 0], enc.pair_out.weight[1, 1] = 1.0 / e, -1.0 / e
+    return policy
+
+
 def test_the_half_turn_about_one_axis_keeps_a_swirl_about_it_all_of_them_cancel_it():
     """The hand-set swirl about z (above), averaged over the half turns: about z alone
     (``symmetric='z'``) it is kept exactly, over all of them it cancels (those about x and y
@@ -198,14 +211,8 @@ def test_the_half_turn_about_one_axis_keeps_a_swirl_about_it_all_of_them_cancel_
     Y, mask = batch(d)
     out = {}
     for symmetric in (False, 'z', True):
-        policy = make(scenario, hidden=2, collision=False, wall=False, command_limit=1e6, symmetric=symmetric)
-        enc, e = policy.encoder, 1e-3
-        first = 1 + DISTANCE_BASIS
+        policy = _swirling(scenario, hidden=2, symmetric=symmetric)
         with torch.no_grad():
-            for param in enc.parameters():
-                param.zero_()
-            enc.pair.weight[0, first], enc.pair.weight[1, first + 1] = e, e
-            enc.pair_out.weight[2, 0], enc.pair_out.weight[1, 1] = 1.0 / e, -1.0 / e
             out[symmetric] = policy(Y, mask)
     torch.testing.assert_close(out['z'], out[False])
     assert out[False].abs().max() > 0.5 and out[True].abs().max() < 1e-5
@@ -237,22 +244,9 @@ def test_the_inversion_keeps_a_swirl_cancels_a_constant_push_and_exports(tmp_pat
     Y, mask = batch(d)
     out = {}
     for inversion in (False, True):
-        policy = make(
-            scenario,
-            hidden=3,
-            collision=False,
-            wall=False,
-            command_limit=1e6,
-            symmetric='z',
-            inversion=inversion,
-        )
-        enc, e = policy.encoder, 1e-3
-        first = 1 + DISTANCE_BASIS
+        policy = _swirling(scenario, hidden=3, symmetric='z', inversion=inversion)
+        enc = policy.encoder
         with torch.no_grad():
-            for param in enc.parameters():
-                param.zero_()
-            enc.pair.weight[0, first], enc.pair.weight[1, first + 1] = e, e
-            enc.pair_out.weight[2, 0], enc.pair_out.weight[1, 1] = 1.0 / e, -1.0 / e
             swirl = policy(Y, mask)
             enc.pair.weight[2, 0] = 1.0  # log(1 + d / scale) > 0
             enc.pair_out.weight[3, 2] = 1.0  # e_z, in the sum channel
