@@ -237,8 +237,8 @@ def test_the_inversion_keeps_a_swirl_cancels_a_constant_push_and_exports(tmp_pat
     """A hand-set network of two parts, the swirl about z (above) and a push along z from each
     neighbour (a hidden unit reading log(1 + d), the coefficient of e_z): averaged over the half
     turn about z the push survives (it sums to a drift, the larger the denser), with the inversion added
-    (``inversion=True``) it cancels and the swirl stays exactly; a trained network with both is
-    odd (u(-Y) = -u(Y)) and commutes with the half turn about z; 2D refuses it (its half turn is
+    (``inversion=True``) it cancels and the swirl stays exactly; a network of random weights with
+    both is odd (u(-Y) = -u(Y)) and commutes with the half turn about z; 2D refuses it (its half turn is
     the inversion); TorchScript and ONNX agree and knode.json records it."""
     scenario, _, d = KINDS[0]
     Y, mask = batch(d)
@@ -349,21 +349,23 @@ def test_in_open_space_a_preferred_sense_turns_the_rotations_off(axis_of, rotate
     assert got is symmetric if isinstance(symmetric, bool) else got == symmetric
 
 
-def test_an_explicit_half_turn_axis_with_the_datas_scenario_is_checked_against_that_scenario():
-    """``--set policy.symmetric=z`` with the recipe (``scenario: auto``): valid for 3D data,
-    refused for 2D data naming the field, once the data's scenario is known."""
+@pytest.mark.parametrize('field,value', [('symmetric', 'z'), ('inversion', True)])
+def test_an_explicit_3d_symmetry_with_the_datas_scenario_is_checked_against_that_scenario(field, value):
+    """``--set policy.symmetric=z`` or ``policy.inversion=true`` with the recipe (``scenario:
+    auto``): valid for 3D data, refused for 2D data naming the field, once the data's scenario is
+    known."""
     room = KINDS[0][0]
     cfg, _ = resolve_config(
-        load_config(RECIPE, {'policy.symmetric': 'z'}),
+        load_config(RECIPE, {f'policy.{field}': value}),
         [_rings(lambda i, rng: rng.normal(size=3))],
         json.dumps(room.to_dict(), sort_keys=True),
         room.dt,
     )
-    assert cfg['policy']['symmetric'] == 'z'
+    assert cfg['policy'][field] == value
     flat = KINDS[3][0]
-    with pytest.raises(ConfigError, match='symmetric'):
+    with pytest.raises(ConfigError, match=f'policy.{field}'):
         resolve_config(
-            load_config(RECIPE, {'policy.symmetric': 'z'}),
+            load_config(RECIPE, {f'policy.{field}': value}),
             [_rings(lambda i, rng: [0.0, 0.0, 1.0])[..., :2]],
             json.dumps(flat.to_dict(), sort_keys=True),
             flat.dt,

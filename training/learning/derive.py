@@ -335,10 +335,10 @@ def derive(
             )
         if rotate:
             turn, why = False, 'false: the equivariant encoder is exactly rotation-equivariant already'
-        else:  # the axes are seen: the half turn about a preferred axis alone may stay
+        elif senses[0]:  # the axes are seen: the half turn about a preferred axis alone may stay
             turn, why = _keep_senses('', senses)
-            if turn is True:
-                turn, why = False, 'false: no arena, and the law is no rotation invariant (policy.axes)'
+        else:
+            turn, why = False, 'false: no arena, and the law is no rotation invariant (policy.axes)'
     else:
         turn = rotate
         why = 'as augment.rotate: ' + (
