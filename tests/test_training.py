@@ -77,19 +77,19 @@ def linear_teacher(Y, mask):
 @contextlib.contextmanager
 def spy_on_selection_rollouts(record):
     """Within the block, the trainer's selection rollouts call ``record(z0, steps, dt)`` first."""
-    import training.learning.trainer as train_module
+    import training.learning.selection as selection_module
 
-    real = train_module.rollout_module
+    real = selection_module.rollout_module
 
     def spy(module, spec, z0, steps, cfg_policy, dt):
         record(z0, steps, dt)
         return real(module, spec, z0, steps, cfg_policy, dt)
 
-    train_module.rollout_module = spy
+    selection_module.rollout_module = spy
     try:
         yield
     finally:
-        train_module.rollout_module = real
+        selection_module.rollout_module = real
 
 
 def _teacher_data(tmp_path, steps=40, trajectories=4, n=5, seed=0):

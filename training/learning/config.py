@@ -66,7 +66,15 @@ DEFAULT_CONFIG: Dict[str, Dict[str, Any]] = {
         'velocity_weight': 1.0,
         'consensus_weight': 0.0,
     },
-    'selection': {'every': 5, 'trajectories': 4, 'steps': None, 'rollouts': 1, 'perturb': 1.0e-3},
+    'selection': {
+        'every': 5,
+        'trajectories': 4,
+        'steps': None,
+        'rollouts': 1,
+        'perturb': 1.0e-3,
+        'confirm': 0,
+        'confirm_trajectories': 8,
+    },
     'augment': {'rotate': False, 'velocity_boost': 0.0},
 }
 NOISE_VARIANCE = {'flock2d': 0.001, 'boids3d': 0.01}
@@ -329,6 +337,18 @@ def normalise_config(raw: Dict[str, Any]) -> Dict[str, Any]:
         'must be null or an integer >= 1',
     )
     _check(pos_int(s['rollouts']), 'selection.rollouts', s['rollouts'], 'must be an integer >= 1')
+    _check(
+        isinstance(s['confirm'], int) and not isinstance(s['confirm'], bool) and s['confirm'] >= 0,
+        'selection.confirm',
+        s['confirm'],
+        'must be an integer >= 0 (0 or 1 = no confirm stage)',
+    )
+    _check(
+        s['confirm_trajectories'] is None or pos_int(s['confirm_trajectories']),
+        'selection.confirm_trajectories',
+        s['confirm_trajectories'],
+        'must be null (all) or an integer >= 1',
+    )
     _check(
         num(s['perturb']) and s['perturb'] >= 0, 'selection.perturb', s['perturb'], 'must be a number >= 0'
     )

@@ -23,15 +23,15 @@ from knode_swarm_ros.core import PolicyError, export_policy, get_scenario, load_
 from knode_swarm_ros.core.errors import KnodeError, RunError
 from knode_swarm_ros.core.policy import ROW_FREE_ENCODERS
 from knode_swarm_ros.core.trajectory import atomic_write
-from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
 
 from .config import ConfigError, PendingConfig, build_policy, complete_config
 from .derive import size_caveat
 from .objectives import TrainingData, make_objective
 from .objectives.one_step import OneStepObjective
-from .period import period_ratio, policy_dt, subsample
+from .period import period_ratio, policy_dt
 from .records import code_provenance, data_reference, write_json
 from .samples import concat_samples, implied_command, make_samples
+from .selection import Candidates, confirm_truths, rollout_metrics, selection_truths
 
 #: Seconds between progress lines within an epoch when the output is not a terminal.
 PROGRESS_EVERY_S = 60.0
@@ -311,7 +311,17 @@ class Trainer:
         self.opt = torch.optim.Adam(self.policy.parameters(), lr=tc['lr'], weight_decay=tc['weight_decay'])
         self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, _lr_lambda(cfg))
         self.epoch = 0  # epochs completed
+        # the selection's best epoch (and, with selection.confirm, its runners-up: the candidates)
         self.best: Optional[Dict[str, Any]] = None
+        self.candidates = Candidates(cfg['selection']['confirm'])
+        self.select_s: Optional[float] = None  # the last selection's seconds
+        self.confirm_s: Optional[float] = None
+        self.confirmed: Optional[List[Dict[str, Any]]] = None
+        # the confirm stage's rollout steps over one selection's, per candidate
+        sc = cfg['selection']
+        selection_size = sum(t.shape[0] * t.shape[1] for t in selection_truths(self.splits, sc, self.ratio))
+        confirm_size = sum(t.shape[0] * t.shape[1] for t in confirm_truths(self.splits, sc, self.ratio))
+        self.confirm_cost = confirm_size / max(selection_size, 1)
         self.start_selection: Optional[Dict[str, Any]] = None  # the starting model's score (fine-tuning)
         self.ref_loss: Optional[float] = None
         self.elapsed = 0.0
@@ -402,6 +412,8 @@ class Trainer:
         self.opt.load_state_dict(ck['optimizer'])
         self.sched.load_state_dict(ck['scheduler'])
         self.epoch, self.best, self.ref_loss = ck['epoch'], ck['best'], ck['ref_loss']
+        self.candidates = Candidates(self.cfg['selection']['confirm'], ck.get('candidates'))
+        self.select_s = ck.get('select_s')
         self.start_selection = ck.get('start_selection')
         self.elapsed = ck.get('elapsed', 0.0)
         # keep the metrics log consistent with the checkpoint (drop epochs after it)
@@ -419,6 +431,8 @@ class Trainer:
             'scheduler': self.sched.state_dict(),
             'epoch': self.epoch,
             'best': self.best,
+            'candidates': self.candidates.kept,
+            'select_s': self.select_s,
             'ref_loss': self.ref_loss,
             'elapsed': self.elapsed,
             'start_selection': self.start_selection,
@@ -438,48 +452,61 @@ class Trainer:
     def select_metrics(self) -> Optional[Dict[str, Any]]:
         """Roll the current module out from the validation trajectories' first frames."""
         sc = self.cfg['selection']
-        if sc['every'] == 0 or all(len(sp['val']) == 0 for sp in self.splits):
+        truths = selection_truths(self.splits, sc, self.ratio)
+        if sc['every'] == 0 or not truths:
             return None
-        self.policy.eval()
-        m: Dict[str, Any] = {}
-        for split in self.splits:  # one batch of rollouts per file (its swarm size)
-            if len(split['val']) == 0:
-                continue
-            truth = subsample(split['val'][: sc['trajectories']], self.ratio)  # frames at the policy's dt
-            steps = truth.shape[1] - 1 if sc['steps'] is None else min(sc['steps'], truth.shape[1] - 1)
-            truth = truth[:, : steps + 1]
-            # several rollouts per start sample the chaotic spread (copy 0 is the start itself; the
-            # same perturbations every epoch and run, so epochs are ranked on the same draws)
-            starts = perturbed_starts(truth[:, 0], sc['rollouts'], sc['perturb'], self.spec.position_dim)
-            pred = rollout_module(self.policy, self.spec, starts, steps, self.cfg['policy'], self.dt)
-            if not np.all(np.isfinite(pred)):
-                self.policy.train()
-                return {'score': float('inf')}
-            truth = np.repeat(truth, sc['rollouts'], axis=0)
-            for key, values in final_metrics(self.spec, pred, truth, dt=self.dt).items():
-                m.setdefault(key, []).extend(values)
-        self.policy.train()
-        out = {'score': selection_score(self.spec, m), 'rollouts': len(m['amd_final'])}
-        # the spread behind the score: standard error of its per-rollout term over the rollouts
-        spread_key = 'avd_final' if self.spec.name == 'flock2d' else 'pod_kld'
-        if len(m.get(spread_key, [])) > 1:
-            out[spread_key + '_se'] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
-        # the medians are what the score's amd term compares; the means are reported beside them
-        out['amd_median'] = float(np.median(m['amd_final']))
-        out['truth_amd_median'] = float(np.median(m['truth_amd_final']))
-        for key in (
-            'avd_final',
-            'amd_final',
-            'truth_amd_final',
-            'truth_avd_final',
-            'pod_kld',
-            'min_distance',
-        ):
-            if key in m:
-                out[key] = float(np.min(m[key]) if key == 'min_distance' else np.mean(m[key]))
-        if 'stays_inside' in m:
-            out['stays_inside'] = float(np.mean(m['stays_inside']))
+        t0 = time.perf_counter()
+        out = rollout_metrics(self.policy, self.spec, truths, sc, self.cfg['policy'], self.dt)
+        self.select_s = time.perf_counter() - t0
         return out
+
+    def _offer(self, epoch: int, sel: Dict[str, Any]) -> None:
+        """A selection's score: the epoch joins the candidates if among the best so far."""
+        if self.candidates.offer(epoch, sel, self.policy):
+            self.best = self.candidates.best
+        elif self.best is None:
+            # nothing finite yet: remember the (infinite) score, the export keeps the last epoch
+            self.best = {'epoch': epoch, 'score': sel['score'], 'metrics': sel, 'state': None}
+
+    def confirm_reserve(self) -> float:
+        """Seconds the confirm stage will take, from the last selection's time: the run's time cap
+        (``training.max_minutes``) holds training and confirm stage together."""
+        sc = self.cfg['selection']
+        if sc['confirm'] < 2 or self.select_s is None:
+            return 0.0
+        return sc['confirm'] * self.select_s * self.confirm_cost
+
+    def confirm(self) -> None:
+        """Score the candidates again on more starts (``selection.confirm``); the best there is the
+        run's choice. Each candidate's two scores are logged and kept in ``self.confirmed``."""
+        sc, kept = self.cfg['selection'], self.candidates.kept
+        if sc['confirm'] < 2 or len(kept) < 2:
+            return
+        t0 = time.perf_counter()
+        truths = confirm_truths(self.splits, sc, self.ratio)
+        current = copy.deepcopy(self.policy.state_dict())
+        scored = []
+        for c in kept:
+            self.policy.load_state_dict(c['state'])
+            m = rollout_metrics(self.policy, self.spec, truths, sc, self.cfg['policy'], self.dt)
+            scored.append(m)
+            self.log(
+                f'confirm: epoch {c["epoch"]} selection score {c["score"]:.4g}, '
+                f'confirm score {m["score"]:.4g} on {m.get("rollouts", 0)} rollouts'
+            )
+        self.policy.load_state_dict(current)
+        self.confirmed = [
+            {'epoch': c['epoch'], 'score': c['score'], 'confirm_score': m['score']}
+            for c, m in zip(kept, scored)
+        ]
+        won = min(range(len(kept)), key=lambda i: (scored[i]['score'], i))
+        if math.isfinite(scored[won]['score']):
+            self.best = {**kept[won], 'confirm': scored[won]}
+        self.confirm_s = time.perf_counter() - t0
+        self.log(
+            f'confirm: epoch {self.best["epoch"]} chosen of the {len(kept)} best by the selection '
+            f'score ({self.confirm_s:.1f}s)'
+        )
 
     def run(self, stop_after: Optional[int] = None) -> Optional[Dict[str, Any]]:
         """Train to ``training.epochs`` (or only up to epoch ``stop_after``, leaving a checkpoint
@@ -560,19 +587,14 @@ class Trainer:
             }
             # a run cut short by max_minutes scores its last epoch too: it is the one it ends with
             out_of_time = (
-                tc['max_minutes'] is not None and time.perf_counter() - start > 60 * tc['max_minutes']
+                tc['max_minutes'] is not None
+                and time.perf_counter() - start > 60 * tc['max_minutes'] - self.confirm_reserve()
             )
             if sc['every'] and (e % sc['every'] == 0 or e == epochs or out_of_time):
                 sel = self.select_metrics()
                 if sel is not None:
                     record['selection'] = sel
-                    if self.best is None or sel['score'] < self.best['score']:
-                        self.best = {
-                            'epoch': e,
-                            'score': sel['score'],
-                            'metrics': sel,
-                            'state': copy.deepcopy(self.policy.state_dict()),
-                        }
+                    self._offer(e, sel)
             self.epoch = e
             self.elapsed = time.perf_counter() - start
             record['elapsed_s'] = round(self.elapsed, 2)
@@ -589,7 +611,11 @@ class Trainer:
             if stop_after is not None and e >= stop_after:
                 return None
             if out_of_time:
-                self.log(f'stopping after epoch {e}: training.max_minutes = {tc["max_minutes"]} reached')
+                reserve = self.confirm_reserve()
+                self.log(
+                    f'stopping after epoch {e}: training.max_minutes = {tc["max_minutes"]} reached'
+                    + (f' (leaving {reserve:.0f}s of it to the confirm stage)' if reserve else '')
+                )
                 break
         return self.finish()
 
@@ -602,12 +628,7 @@ class Trainer:
         sel = self.select_metrics()
         self.start_selection = sel
         if sel is not None and math.isfinite(sel['score']):
-            self.best = {
-                'epoch': 0,
-                'score': sel['score'],
-                'metrics': sel,
-                'state': copy.deepcopy(self.policy.state_dict()),
-            }
+            self._offer(0, sel)
             self.log('starting model (multistep.init) ' + _selection_text(sel))
 
     def _export_twin(self, path: str) -> Dict[str, Any]:
@@ -638,6 +659,7 @@ class Trainer:
         return out
 
     def finish(self) -> Dict[str, Any]:
+        self.confirm()
         final_state = copy.deepcopy(self.policy.state_dict())
         chosen = 'last'
         if self.best is not None and math.isfinite(self.best['score']):
@@ -647,6 +669,11 @@ class Trainer:
                 if self.best['epoch']
                 else 'best rollout score (epoch 0: the starting model, multistep.init)'
             )
+            if 'confirm' in self.best:
+                chosen = (
+                    f'best confirm score (epoch {self.best["epoch"]}, of the {len(self.confirmed)} '
+                    'best by the rollout score)'
+                )
         meta = self.policy.metadata(dt=self.dt)
         meta['provenance'] = {
             'trainer': 'training.train',
@@ -679,6 +706,8 @@ class Trainer:
             'val_samples': 0 if self.val is None else len(self.val),
             'best': None if self.best is None else {k: v for k, v in self.best.items() if k != 'state'},
             'start_selection': self.start_selection,
+            'confirmed': self.confirmed,
+            'confirm_seconds': None if self.confirm_s is None else round(self.confirm_s, 1),
             'onnx': onnx_twin,
         }
         if self.derived:
