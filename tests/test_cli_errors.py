@@ -84,6 +84,7 @@ CASES = [
     ('studies.law_fit', '--law mill2d --config {tmp}/missing.yaml', 'missing.yaml'),
     ('studies.law_sizes', '--law mill2d --robots 10 1', '--robots'),
     ('studies.law_sizes', '--law mill2d --reach -1', '--reach'),
+    ('studies.confirm_pairs', '{tmp}/missing_law --out {tmp}/pairs.md', 'missing_law'),
 ]
 
 

@@ -173,3 +173,25 @@ def test_bad_confirm_settings_are_refused_naming_the_field(field, value):
 def test_the_generic_recipe_confirms(tmp_path):
     recipe = yaml.safe_load(open('config/train_custom.yaml'))
     assert recipe['selection']['confirm'] >= 2 and recipe['selection']['confirm_trajectories'] >= 1
+
+
+def test_the_selection_alone_is_exported_beside_the_run_for_the_paired_study(tmp_path):
+    """training.studies.confirm_pairs: the epoch the selection alone would have kept, as a policy."""
+    from training.studies.confirm_pairs import export_selection_best
+
+    cfg = _cfg(confirm=3, confirm_trajectories=4)
+    trainer = Trainer(cfg, _data(tmp_path), str(tmp_path / 'run'), **QUIET)
+    summary = trainer.run()
+    pair = export_selection_best(str(tmp_path / 'run'), str(tmp_path / 'selection'))
+    first = trainer.candidates.kept[0]
+    assert pair['selection_epoch'] == first['epoch'] != pair['confirm_epoch'] == summary['best']['epoch']
+    alone, confirmed = load_policy(pair['policy']), load_policy(summary['policy'])
+    s = trainer.train
+    with torch.no_grad():
+        want = _module(cfg, first['state'])(s.Y, s.mask).numpy()
+    np.testing.assert_allclose(alone(s.Y.numpy(), s.mask.numpy()), want, atol=1e-6)
+    assert not np.allclose(alone(s.Y.numpy(), s.mask.numpy()), confirmed(s.Y.numpy(), s.mask.numpy()))
+    assert alone.meta['scenario'] == confirmed.meta['scenario'] and alone.dt == confirmed.dt
+    # a run without the confirm stage has no pair
+    Trainer(_cfg(), _data(tmp_path), str(tmp_path / 'plain'), **QUIET).run()
+    assert export_selection_best(str(tmp_path / 'plain'), str(tmp_path / 'none')) is None

@@ -50,18 +50,15 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 import yaml
 
-from knode_swarm_ros.core import load_policy
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
-from training.assessment.order import compare_orders, order_figure, order_lines
-from training.assessment.scores import rollout_policy
+from training.assessment.order import order_lines
 from training.learning.config import load_config
 from training.learning.records import write_json
 
+from .law_goals import evaluate_law
 from .law_noise import import_against_law, law_at, noise_figure, noise_table
 from .laws import LAWS, RECIPE, Law, initial_states, simulate
-
-GOALS = {10: (0.15, 0.10), 30: (0.25, 0.15)}  # robots -> (relative nn error, order parameter error)
 
 
 def write_tracks(law: Law, folder: str, trajectories: int, robots: int, seed: int) -> List[str]:
@@ -128,58 +125,6 @@ def _run(argv: List[str], log) -> None:
     env = dict(os.environ)
     log('$ ' + ' '.join(argv))
     subprocess.run([sys.executable, '-m', *argv], check=True, env=env)
-
-
-def evaluate_law(
-    law: Law, policy_path: str, out: str, robots: int, starts: int, seed: int, learnt_on=(10,)
-) -> Dict[str, Any]:
-    """Learnt against the law from ``starts`` held-out starts of ``robots`` robots (the policy
-    learnt on tracks of ``learnt_on`` robots: the figure's title)."""
-    spec = law.scenario
-    policy = load_policy(policy_path)
-    z0 = initial_states(law, starts, robots, seed)
-    truth = simulate(law, z0, law.steps)
-    t0 = time.perf_counter()
-    pred = rollout_policy(policy, z0, law.steps)
-    orders = compare_orders(spec, pred, truth, spec.dt)
-    os.makedirs(out, exist_ok=True)
-    order_figure(
-        os.path.join(out, 'orders.png'),
-        spec,
-        pred,
-        truth,
-        spec.dt,
-        f'{law.name}: {robots} robots, {starts} held-out starts, learnt on {" + ".join(map(str, learnt_on))}',
-    )
-    rel_tol, order_tol = GOALS.get(robots, GOALS[30])
-    mean = {name: (e['learnt']['mean'], e['observed']['mean']) for name, e in orders.items()}
-    nn_rel = abs(mean['nn_distance'][0] - mean['nn_distance'][1]) / mean['nn_distance'][1]
-    goals = {
-        'finite': bool(np.all(np.isfinite(pred))),
-        'nn_rel_error': float(nn_rel),
-        f'nn_within_{int(rel_tol * 100)}%': bool(nn_rel <= rel_tol),
-        'polarisation_error': float(abs(mean['polarisation'][0] - mean['polarisation'][1])),
-        'rotation_error': float(abs(mean['rotation_order'][0] - mean['rotation_order'][1])),
-    }
-    goals[f'polarisation_within_{order_tol}'] = goals['polarisation_error'] <= order_tol
-    goals[f'rotation_within_{order_tol}'] = goals['rotation_error'] <= order_tol
-    if 'escapes' in mean:
-        goals['escapes_not_more'] = bool(
-            sum(orders['escapes']['per_rollout']['learnt'])
-            <= sum(orders['escapes']['per_rollout']['observed'])
-        )
-    result = {
-        'law': law.name,
-        'robots': robots,
-        'starts': starts,
-        'seed': seed,
-        'steps': law.steps,
-        'rollout_seconds': round(time.perf_counter() - t0, 1),
-        'orders': orders,
-        'goals': goals,
-    }
-    write_json(os.path.join(out, 'results.json'), result)
-    return result
 
 
 def _recipe_seed(config: str) -> int:

@@ -120,7 +120,7 @@ def noise_table(cases: List[Dict[str, Any]], robots: int = 10) -> str:
     errors against the law, the order parameters (mean ± std over the held-out starts), their
     differences to the law and, per start, to the 0-mm case of the same rate and seed (mean ±
     standard error). ``cases``: ``{'noise_mm', 'rate', 'seed', 'import', 'eval', 'train_seconds',
-    'load'}`` with ``eval`` the ``results.json`` of :func:`custom_laws.evaluate_law`."""
+    'load'}`` with ``eval`` the ``results.json`` of :func:`law_goals.evaluate_law`."""
     key = f'n{robots}'
     head = [
         'noise (mm)',
