@@ -52,3 +52,60 @@ def test_flock2d(metrics, expected):
 )
 def test_boids3d(metrics, expected):
     assert selection_score(get_scenario('boids3d'), metrics) == pytest.approx(expected, rel=1e-12)
+
+
+def _own(arena=None):
+    from knode_swarm_ros.core.scenarios import scenario_from_dict
+
+    return scenario_from_dict(
+        dict(name='own', dimensions=2, state='position', command='velocity', dt=0.1, arena=arena)
+    )
+
+
+ORDERS = dict(
+    order_polarisation=[0.9, 0.7],
+    truth_order_polarisation=[0.95, 0.95],
+    order_rotation=[0.1, 0.3],
+    truth_order_rotation=[0.1, 0.1],
+)
+
+
+@pytest.mark.parametrize(
+    'metrics, arena, expected',
+    [
+        # |mean amd - mean truth| / mean truth + |polarisation difference| + |rotation difference|
+        (dict(ORDERS, amd_final=[0.5, 0.7], truth_amd_final=[0.5, 0.5]), None, 0.2 + 0.15 + 0.1),
+        # a swarm that splits from one start of four: the mean sees it, a median would not
+        (
+            dict(ORDERS, amd_final=[0.5, 0.5, 0.5, 2.5], truth_amd_final=[0.5] * 4),
+            None,
+            1.0 + 0.15 + 0.1,
+        ),
+        # escapes per rollout beyond the ground truth's (none below it)
+        (
+            dict(
+                ORDERS,
+                amd_final=[0.5, 0.5],
+                truth_amd_final=[0.5, 0.5],
+                order_escapes=[2, 0],
+                truth_order_escapes=[0, 0],
+            ),
+            {'half_width': 3.0},
+            0.15 + 0.1 + 1.0,
+        ),
+        (
+            dict(
+                ORDERS,
+                amd_final=[0.5, 0.5],
+                truth_amd_final=[0.5, 0.5],
+                order_escapes=[0, 0],
+                truth_order_escapes=[1, 1],
+            ),
+            {'half_width': 3.0},
+            0.15 + 0.1,
+        ),
+        (dict(ORDERS, amd_final=[float('inf'), 0.5], truth_amd_final=[0.5, 0.5]), None, math.inf),
+    ],
+)
+def test_any_other_scenario(metrics, arena, expected):
+    assert selection_score(_own(arena), metrics) == pytest.approx(expected, rel=1e-12)

@@ -87,7 +87,7 @@ def rollout_metrics(
     spread_key = 'avd_final' if spec.name == 'flock2d' else 'pod_kld'
     if len(m.get(spread_key, [])) > 1:
         out[spread_key + '_se'] = float(np.std(m[spread_key], ddof=1) / np.sqrt(len(m[spread_key])))
-    # the medians are what the score's amd term compares; the means are reported beside them
+    # the paper's scenarios compare the medians of amd, any other the means: both reported
     out['amd_median'] = float(np.median(m['amd_final']))
     out['truth_amd_median'] = float(np.median(m['truth_amd_final']))
     for key in _REPORTED:
