@@ -585,10 +585,12 @@ class Trainer:
                 'lr': lr,
                 'epoch_s': round(epoch_s, 3),
             }
-            # a run cut short by max_minutes scores its last epoch too: it is the one it ends with
+            # The cap holds the whole run: this epoch is the last when one more (at this epoch's
+            # time, then scored at the last selection's) would end past it, the confirm stage's
+            # reserve left. A run cut short scores its last epoch too: it is the one it ends with.
+            ahead = epoch_s + (self.select_s or 0.0) + self.confirm_reserve()
             out_of_time = (
-                tc['max_minutes'] is not None
-                and time.perf_counter() - start > 60 * tc['max_minutes'] - self.confirm_reserve()
+                tc['max_minutes'] is not None and time.perf_counter() - start + ahead > 60 * tc['max_minutes']
             )
             if sc['every'] and (e % sc['every'] == 0 or e == epochs or out_of_time):
                 sel = self.select_metrics()
@@ -613,7 +615,7 @@ class Trainer:
             if out_of_time:
                 reserve = self.confirm_reserve()
                 self.log(
-                    f'stopping after epoch {e}: training.max_minutes = {tc["max_minutes"]} reached'
+                    f'stopping after epoch {e}: another would end past training.max_minutes = {tc["max_minutes"]}'
                     + (f' (leaving {reserve:.0f}s of it to the confirm stage)' if reserve else '')
                 )
                 break
