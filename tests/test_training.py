@@ -251,9 +251,10 @@ def test_fixed_seed_is_deterministic_and_resume_matches(tmp_path):
 
 
 def test_the_time_cap_starts_no_epoch_that_would_end_past_it(tmp_path, monkeypatch):
-    # a clock that moves only when an epoch's batches are drawn: 60 s per epoch, a 3.5-minute
-    # cap. Epoch 3 ends at 180 s and a fourth would end at 240 s, past 210 s: the run ends
-    # after epoch 3, within the cap (stopping after the epoch that crossed it would end at 240 s)
+    # a clock that moves only while an epoch draws its batches (40 s) and takes its validation
+    # loss (20 s): 60 s per epoch, a 3.8-minute cap. Epoch 3 ends at 180 s and a fourth would
+    # end at 240 s, past 228 s: the run ends after epoch 3, within the cap (stopping after the
+    # epoch that crossed it would end at 240 s, and so would an estimate without validation)
     import training.learning.trainer as trainer_module
 
     clock = {'now': 0.0}
@@ -261,19 +262,24 @@ def test_the_time_cap_starts_no_epoch_that_would_end_past_it(tmp_path, monkeypat
         trainer_module, 'time', type('Clock', (), {'perf_counter': staticmethod(lambda: clock['now'])})
     )
     data, _ = _teacher_data(tmp_path)
-    _, cfg = _config(tmp_path, training={'epochs': 10, 'max_minutes': 3.5}, selection={'every': 0})
+    _, cfg = _config(tmp_path, training={'epochs': 10, 'max_minutes': 3.8}, selection={'every': 0})
     trainer = Trainer(cfg, data, str(tmp_path / 'run'), progress=False, log=lambda *a: None)
-    draw = trainer.objective.batches
+    draw, validate = trainer.objective.batches, trainer.val_loss
 
     def batches(epoch, g):
-        clock['now'] += 60.0
+        clock['now'] += 40.0
         return draw(epoch, g)
 
+    def val_loss():
+        clock['now'] += 20.0
+        return validate()
+
     monkeypatch.setattr(trainer.objective, 'batches', batches)
+    monkeypatch.setattr(trainer, 'val_loss', val_loss)
     summary = trainer.run()
     log = [json.loads(line) for line in open(tmp_path / 'run' / 'metrics.jsonl')]
     assert summary['epochs'] == 3 and [r['epoch'] for r in log] == [1, 2, 3]
-    assert log[-1]['elapsed_s'] == 180.0 <= 60 * 3.5
+    assert log[-1]['elapsed_s'] == 180.0 <= 60 * 3.8
 
 
 def test_divergence_guard_on_absurd_learning_rate(tmp_path, capsys):

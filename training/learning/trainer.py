@@ -586,12 +586,12 @@ class Trainer:
                 'epoch_s': round(epoch_s, 3),
             }
             # The cap holds the whole run: this epoch is the last when one more (at this epoch's
-            # time, then scored at the last selection's) would end past it, the confirm stage's
-            # reserve left. A run cut short scores its last epoch too: it is the one it ends with.
-            ahead = epoch_s + (self.select_s or 0.0) + self.confirm_reserve()
-            out_of_time = (
-                tc['max_minutes'] is not None and time.perf_counter() - start + ahead > 60 * tc['max_minutes']
-            )
+            # time, its validation loss included, then scored at the last selection's) would end
+            # past it, the confirm stage's reserve left. A run cut short scores its last epoch
+            # too: it is the one it ends with.
+            now = time.perf_counter()
+            ahead = (now - t0) + (self.select_s or 0.0) + self.confirm_reserve()
+            out_of_time = tc['max_minutes'] is not None and now - start + ahead > 60 * tc['max_minutes']
             if sc['every'] and (e % sc['every'] == 0 or e == epochs or out_of_time):
                 sel = self.select_metrics()
                 if sel is not None:
