@@ -18,13 +18,16 @@ the recipe's equivariant encoder, against the same encoder unsteered; the 3D are
 times the equivariant encoder seeing the coordinate axes (``policy.axes``, which the recipe
 derives with an arena), averaged over all half turns and over the half turn about z alone
 (``symmetric: z``), against the same encoder without the axes. One thread, as the agents and
-the recipe (``training.threads: 1``) run.
+the recipe (``training.threads: 1``) run. The last section (``--only-tail`` runs it alone)
+times the equivariant encoder's basis Gaussians with their far tail set to zero (as built)
+against the same encoder without that cutoff, whose tail is float32 subnormals.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import math
 import os
 import statistics
 import sys
@@ -95,9 +98,12 @@ HEADINGS = scenario(2, 'position_heading', 'velocity', None)
 STEERING = {'speed': 1.0, 'turn_limit': 0.15}
 
 
-def measure(ref: str, encoder: str, symmetric, k: int, repeats: int, **extra):
+def measure(ref: str, encoder: str, symmetric, k: int, repeats: int, cutoff=None, **extra):
+    """``cutoff``: the equivariant encoder's basis cutoff, if not its own (``math.inf``: none)."""
     torch.manual_seed(0)
     policy = KNODEPolicy(PolicyConfig(ref, k=k, d_cr=3.0, encoder=encoder, symmetric=symmetric, **extra))
+    if cutoff is not None:
+        policy.encoder.basis_cutoff = cutoff
     d = policy.state_dim
     module = scripted(policy)
     out = {}
@@ -109,6 +115,8 @@ def measure(ref: str, encoder: str, symmetric, k: int, repeats: int, **extra):
     train = KNODEPolicy(
         PolicyConfig(ref, k=10, d_cr=3.0, encoder=encoder, symmetric=symmetric, **extra)
     ).train()
+    if cutoff is not None:
+        train.encoder.basis_cutoff = cutoff
     Y, mask = torch.randn(2048, 10, d), torch.ones(2048, 10)
     target = torch.randn(2048, train.command_dim)
 
@@ -127,10 +135,18 @@ def main(argv=None) -> None:
     parser.add_argument(
         '--k', type=int, default=37, help='rows of Y at run time (the set encoder derives ~37)'
     )
+    parser.add_argument('--only-tail', action='store_true', help='only the basis tail section')
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     print('$ python bench/bench_encoders.py ' + ' '.join(argv if argv is not None else sys.argv[1:]))
     print(machine())
+    if not args.only_tail:
+        compare_encoders(args)
+    basis_tail(args)
+
+
+def compare_encoders(args) -> None:
+    """The encoders, steering and the axes, each against its baseline."""
     for name, ref in SCENARIOS.items():
         print(f'\n{name} (k = {args.k} at run time, 10 in training)')
         rows = {
@@ -160,14 +176,36 @@ def main(argv=None) -> None:
     table(rows, 'equivariant + symmetric')
 
 
-def table(rows, base_label: str) -> None:
+def basis_tail(args) -> None:
+    """The equivariant encoder as the recipe builds it (2D open space; 3D arena with the axes and
+    the half-turn average), its basis Gaussians' far tail zero against the same encoder without
+    the cutoff (a tail of float32 subnormals)."""
+    arena = SCENARIOS['3D position_velocity, acceleration, arena']
+    print(
+        f"\nThe basis Gaussians' zero tail against their subnormal one (k = {args.k} at run time, 10 in training)"
+    )
+    rows = {}
+    for name, ref, extra in (
+        ('2D position, velocity', SCENARIOS['2D position, velocity'], {'symmetric': False}),
+        ('3D arena, axes + symmetric', arena, {'symmetric': True, 'axes': True}),
+    ):
+        for label, cutoff in (('subnormal tail', math.inf), ('zero tail', None)):
+            rows[f'{name}, {label}'] = measure(
+                ref, 'equivariant', k=args.k, repeats=args.repeats, cutoff=cutoff, **extra
+            )
+    table(rows, '2D position, velocity, subnormal tail', pairs=True)
+
+
+def table(rows, base_label: str, pairs: bool = False) -> None:
     """Print ``rows`` (label -> figures) as a markdown table, each figure with its ratio to the
-    row ``base_label``'s."""
+    row ``base_label``'s (``pairs``: each row's to the row before it, every second row)."""
     base = rows[base_label]
     print('| network | ' + ' | '.join(base) + ' |')
     print('|---' * (len(base) + 1) + '|')
-    for label, figures in rows.items():
-        cells = [f'{v:.1f} ({v / base[key]:.2f}x)' for key, v in figures.items()]
+    labels = list(rows)
+    for i, (label, figures) in enumerate(rows.items()):
+        ref = rows[labels[i - i % 2]] if pairs else base
+        cells = [f'{v:.1f} ({v / ref[key]:.2f}x)' for key, v in figures.items()]
         print(f'| {label} | ' + ' | '.join(cells) + ' |')
 
 

@@ -120,6 +120,27 @@ def test_hand_set_weights_give_the_central_force_they_encode(column):
     np.testing.assert_allclose(u, expected, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize('dims', [2, 3])
+def test_the_basis_holds_no_subnormal_numbers_and_is_the_gaussians_elsewhere(dims):
+    """From contact to far past the radius, each basis value is a float32 normal number or
+    exactly zero (subnormals slow CPU arithmetic many times over), zero only where the Gaussian
+    is below exp(-80), and elsewhere the Gaussian."""
+    enc = make(spec(dims, 'position', 'velocity'), d_cr=5.0).encoder
+    d = torch.logspace(-4, 3, 4001).reshape(1, -1, 1)
+    r = torch.cat([d, torch.zeros(1, d.shape[1], dims - 1)], dim=-1)
+    zero = torch.zeros_like(r)
+    with torch.no_grad():
+        scalars, _ = enc.pair_terms(r, zero, zero)
+    basis = scalars[..., 1 : 1 + DISTANCE_BASIS].double()
+    assert not ((basis != 0) & (basis.abs() < torch.finfo(torch.float32).tiny)).any()
+    x = torch.log1p(d.double())
+    centres = torch.tensor(enc.basis_centres, dtype=torch.float64)
+    q = ((x - centres) / enc.basis_width) ** 2
+    expected = np.where(q.numpy() < 80.0, np.exp(-q.numpy()), 0.0)  # within atol where q is near 80
+    np.testing.assert_allclose(basis.numpy(), expected, rtol=1e-4, atol=1e-30)
+    assert (basis == 0).any() and (basis > 0.5).any()  # both the tail and the peaks were reached
+
+
 def _recipe(scenario, tracks, **overrides):
     import json
 

@@ -58,6 +58,10 @@ __all__ = ['EquivariantEncoder', 'DISTANCE_BASIS']
 #: Gaussians of the pair distance the pair layer sees beside ``log(1 + d)``.
 DISTANCE_BASIS = 32
 
+#: A basis Gaussian is zero where its exponent exceeds this (exp(-80) is 1.8e-35, nothing beside
+#: the O(1) inputs of the pair layer).
+BASIS_CUTOFF = 80.0
+
 
 def _left(x: Tensor) -> Tensor:
     """``x [..., 2]`` turned by +90 degrees."""
@@ -128,6 +132,7 @@ class EquivariantEncoder(nn.Module):
         # plain floats, as the other constants here: ONNX export takes flat lists
         self.basis_centres: List[float] = [top * i / (DISTANCE_BASIS - 1) for i in range(DISTANCE_BASIS)]
         self.basis_width = top / (DISTANCE_BASIS - 1)
+        self.basis_cutoff = BASIS_CUTOFF
         self.own_vectors = (2 if position_dim == 2 else 1) if self.moving else 0
         # 1 for the pair vectors that do not vanish for a neighbour in the own state (v, v turned),
         # per channel (sum, then mean): plain floats, as the half-turn signs, for ONNX export
@@ -159,7 +164,11 @@ class EquivariantEncoder(nn.Module):
         rh = r / d
         logd = torch.log(1.0 + d)
         centres = torch.tensor(self.basis_centres, dtype=r.dtype, device=r.device)
-        radial = torch.cat([logd, torch.exp(-(((logd - centres) / self.basis_width) ** 2))], dim=-1)
+        q = ((logd - centres) / self.basis_width) ** 2
+        # A Gaussian's far tail is exactly zero, not subnormal: float32 subnormals (below 1e-38)
+        # slow x86 arithmetic many times over, and one in fifty of the basis values were.
+        gauss = torch.where(q < self.basis_cutoff, torch.exp(-q), torch.zeros_like(q))
+        radial = torch.cat([logd, gauss], dim=-1)
         dv, v = _soft(dv), _soft(v)
         if not self.moving:
             scalars = radial
