@@ -166,8 +166,10 @@ class EquivariantEncoder(nn.Module):
         centres = torch.tensor(self.basis_centres, dtype=r.dtype, device=r.device)
         q = ((logd - centres) / self.basis_width) ** 2
         # A Gaussian's far tail is exactly zero, not subnormal: float32 subnormals (below 1e-38)
-        # slow x86 arithmetic many times over, and one in fifty of the basis values were.
-        gauss = torch.where(q < self.basis_cutoff, torch.exp(-q), torch.zeros_like(q))
+        # slow x86 arithmetic many times over, and one in fifty of the basis values were. The
+        # clamp keeps exp itself from computing them (where evaluates both branches).
+        cut = torch.clamp(q, max=self.basis_cutoff)
+        gauss = torch.where(q < self.basis_cutoff, torch.exp(-cut), torch.zeros_like(q))
         radial = torch.cat([logd, gauss], dim=-1)
         dv, v = _soft(dv), _soft(v)
         if not self.moving:
