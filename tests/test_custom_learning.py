@@ -201,6 +201,52 @@ def test_starlings_heed_their_nearest_whatever_the_distance_and_relax_their_head
     assert np.arctan2(abs(far[1]), far[0]) <= np.arctan(0.1 / 0.9) + 1e-12
 
 
+def test_roundabout_robots_follow_the_rooms_field_and_keep_off_each_other():
+    """roundabout2d: a lone robot at rest on the ring (2, 0) accelerates anticlockwise (+y) at
+    gain x speed; outside the ring it is drawn in, inside pushed out; a second robot within
+    1 m adds a push away from it; near a wall the push is off the wall; the command never passes
+    3 m/s^2."""
+    from training.studies.laws import roundabout2d
+
+    def accel(p, v=(0.0, 0.0), others=()):
+        z = np.array([[[*p, *v]] + [[*o, 0.0, 0.0] for o in others]])
+        return roundabout2d(z)[0, 0]
+
+    np.testing.assert_allclose(accel((2.0, 0.0)), [0.0, 1.5 * 0.8], atol=1e-12)
+    assert accel((2.5, 0.0))[0] < 0.0 < accel((1.5, 0.0))[0]
+    pushed = accel((2.0, 0.0), others=[(2.0, 0.5)])
+    assert pushed[1] < 1.5 * 0.8 and pushed[0] == pytest.approx(0.0, abs=1e-12)
+    assert accel((2.0, 0.0), others=[(2.0, 1.5)])[1] == pytest.approx(1.5 * 0.8)  # out of range
+    assert accel((3.8, 0.0), v=(0.0, 0.8))[0] < accel((3.0, 0.0), v=(0.0, 0.8))[0] < 0.0
+    assert np.linalg.norm(accel((0.1, 0.0), v=(5.0, 5.0), others=[(0.15, 0.0)])) == pytest.approx(3.0)
+
+
+def test_fish_in_a_3d_tank_turn_at_a_bounded_rate_away_from_walls_and_neighbours():
+    """fish3d_tank, a fish heading +x at 0.8 m/s: alone in mid-tank it goes straight on; a wall
+    ahead within 1 m turns it (by the turn limit, 2.5 rad/s x dt, at most), one farther does not; a fish within 0.4 m
+    to its left (+y) turns it right (-y); a fish ahead heading +z, in reach, turns it up; the
+    speed is always 0.8."""
+    from training.studies.laws import fish3d_tank
+
+    def heading(p=(0.0, 0.0, 0.0), others=(), h0=(1.0, 0.0, 0.0)):
+        z = np.array([[[*p, *h0]] + [[*o, *h] for o, h in others]])
+        u = fish3d_tank(z)[0, 0]
+        assert np.linalg.norm(u) == pytest.approx(0.8)
+        return u / 0.8
+
+    limit = 2.5 * 0.05
+    np.testing.assert_allclose(heading(), [1.0, 0.0, 0.0], atol=1e-12)
+    # heading a little to the left (+y) towards the wall at x = 3: it turns on round to the left
+    h0 = np.array([np.cos(0.1), np.sin(0.1), 0.0])
+    off_wall = heading(p=(2.5, 0.0, 0.0), h0=h0)
+    assert np.arccos(np.clip(off_wall @ h0, -1, 1)) == pytest.approx(limit) and off_wall[1] > h0[1]
+    np.testing.assert_allclose(heading(p=(1.5, 0.0, 0.0), h0=h0), h0, atol=1e-12)  # the wall out of range
+    away = heading(others=[((0.1, 0.3, 0.0), (1.0, 0.0, 0.0))])
+    assert away[1] < 0.0 and np.arccos(away[0]) <= limit + 1e-12
+    up = heading(others=[((1.0, 0.0, 0.0), (0.0, 0.0, 1.0))])
+    assert up[2] > 0.0 and np.arccos(up[0]) <= limit + 1e-12
+
+
 def test_tank_school_turns_off_a_wall_along_it_and_keeps_its_speed():
     """tank2d (arena half width 3 m, walls felt within 1.2 m): a lone robot in the middle heading
     +x goes straight on; one 0.3 m from the +x wall heading at it turns left (+y: along the wall,

@@ -1,4 +1,4 @@
-"""Eight swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
+"""Ten swarm laws of our own, unlike Tanner's flocking and boids, to show the generic recipe
 (``config/train_custom.yaml``) on swarms it was not written for (docs/scenarios.md, "Show it on
 swarms of your own").
 
@@ -30,6 +30,15 @@ swarms of your own").
 * ``drones3d``: the same drones in open space (no walls): the swirl's preferred vertical is then
   the law's alone, which no scenario field states; added with the recipe fixed, to check that the
   recipe reads it from the data (docs/scenarios.md, "A preferred sense in open space").
+* ``roundabout2d``: ground robots in a room (``position_velocity`` + ``acceleration``, 2D, half
+  width 4 m): each tracks a velocity field of the room itself (anticlockwise round its centre,
+  onto a ring of radius 2 m) and is pushed off robots within 1 m and off the walls: a command
+  that depends on where a robot is, not only on its neighbours.
+* ``fish3d_tank``: fish in a 3D tank (``position_heading`` + ``velocity``, half width 3 m, 0.8
+  m/s): topological alignment with the 4 nearest, towards those of them within 2 m, away from
+  any within 0.4 m, and away from walls within 1 m; at most 2.5 rad/s.
+  Both added with the recipe fixed and never tuned on, as a blind check on the two scenario
+  kinds no law had covered (a double integrator in a 2D arena; a heading in a 3D arena).
 
 Each law is a function ``(states [S, n, d]) -> command [S, n, dim]``; :func:`simulate` integrates
 it with the scenario's zero-order hold (:func:`knode_swarm_ros.core.rollout.zoh_step`), the same
@@ -266,6 +275,71 @@ def starlings3d(
     return speed * np.where(norm > 1e-9, new / np.maximum(norm, 1e-9), h)
 
 
+def roundabout2d(
+    z: np.ndarray,
+    w: float = 4.0,
+    ring: float = 2.0,
+    speed: float = 0.8,
+    gain: float = 1.5,
+    r_repulse: float = 1.0,
+    wall_range: float = 0.8,
+) -> np.ndarray:
+    p, v = z[..., :2], z[..., 2:]
+    r, d = _offsets(p)
+    close = d < r_repulse
+    dc = np.where(close, d, 1.0)
+    push = np.where(close, r_repulse / np.maximum(dc, 0.1) - 1.0, 0.0)
+    a = -(push[..., None] * r / dc[..., None]).sum(axis=2)
+    # a velocity field of the room: anticlockwise round its centre, onto a ring
+    rad = np.linalg.norm(p, axis=-1, keepdims=True)
+    out = p / np.maximum(rad, 1e-6)
+    a += gain * (speed * _left(out) + 0.8 * (ring - rad) * out - v)
+    a += 4.0 * _walls_depth(p, w, wall_range)
+    return _clip_norm(a, 3.0)
+
+
+def _turn_towards_3d(h: np.ndarray, want: np.ndarray, most: float) -> np.ndarray:
+    """3D unit headings ``h`` turned towards ``want`` by at most ``most`` radians, in the plane
+    of the two (``want`` exactly behind has no such plane: the heading is kept)."""
+    wu = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 1e-9)
+    c = np.clip((h * wu).sum(-1, keepdims=True), -1.0, 1.0)
+    side = wu - c * h
+    sn = np.linalg.norm(side, axis=-1, keepdims=True)
+    n = side / np.maximum(sn, 1e-9) * (sn > 1e-9)
+    a = np.minimum(np.arccos(c), most)
+    new = np.cos(a) * h + np.sin(a) * n
+    return new / np.maximum(np.linalg.norm(new, axis=-1, keepdims=True), 1e-9)
+
+
+def fish3d_tank(
+    z: np.ndarray,
+    w: float = 3.0,
+    speed: float = 0.8,
+    k: int = 4,
+    r_repulse: float = 0.4,
+    r_attract: float = 2.0,
+    wall_range: float = 1.0,
+    turn_rate: float = 2.5,
+    dt: float = DT,
+) -> np.ndarray:
+    p, h = z[..., :3], z[..., 3:]
+    r, d = _offsets(p)
+    nearest = np.argsort(d, axis=2)[:, :, : min(k, p.shape[1] - 1)]
+    heeded = np.zeros(d.shape, dtype=bool)
+    np.put_along_axis(heeded, nearest, True, axis=2)
+    rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
+    count = heeded.sum(axis=2, keepdims=True)
+    align = (h[:, None, :, :] * heeded[..., None]).sum(axis=2) / np.maximum(count, 1)  # a lone fish
+    near = heeded & (d < r_attract)
+    towards = (rh * near[..., None]).sum(axis=2) / np.maximum(near.sum(axis=2, keepdims=True), 1)
+    close = d < r_repulse
+    away = -(rh * close[..., None]).sum(axis=2)
+    want = np.where(close.any(axis=2, keepdims=True), away, h + align + towards)
+    want = want / np.maximum(np.linalg.norm(want, axis=-1, keepdims=True), 1e-9)
+    want = want + 4.0 * _walls_depth(p, w, wall_range) / wall_range
+    return speed * _turn_towards_3d(h, want, turn_rate * dt)
+
+
 def _spec(name: str, dims: int, state: str, command: str, arena=None) -> Scenario:
     return scenario_from_dict(
         dict(name=name, dimensions=dims, state=state, command=command, dt=DT, arena=arena), name
@@ -308,6 +382,22 @@ LAWS: Dict[str, Law] = {
         400,
     ),
     'drones3d': Law('drones3d', _spec('drones3d', 3, 'position', 'velocity'), drones3d, 0.4, 0.0, 400),
+    'roundabout2d': Law(
+        'roundabout2d',
+        _spec('roundabout2d', 2, 'position_velocity', 'acceleration', {'half_width': 4.0}),
+        roundabout2d,
+        0.6,
+        0.5,
+        400,
+    ),
+    'fish3d_tank': Law(
+        'fish3d_tank',
+        _spec('fish3d_tank', 3, 'position_heading', 'velocity', {'half_width': 3.0}),
+        fish3d_tank,
+        0.5,
+        1.0,
+        400,
+    ),
 }
 
 
