@@ -85,6 +85,7 @@ CASES = [
     ('studies.law_sizes', '--law mill2d --robots 10 1', '--robots'),
     ('studies.law_sizes', '--law mill2d --reach -1', '--reach'),
     ('studies.confirm_pairs', '{tmp}/missing_law --out {tmp}/pairs.md', 'missing_law'),
+    ('studies.confirm_starts', '{tmp}/missing_law --out {tmp}/sizes.json', 'missing_law'),
 ]
 
 

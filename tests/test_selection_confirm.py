@@ -195,3 +195,27 @@ def test_the_selection_alone_is_exported_beside_the_run_for_the_paired_study(tmp
     # a run without the confirm stage has no pair
     Trainer(_cfg(), _data(tmp_path), str(tmp_path / 'plain'), **QUIET).run()
     assert export_selection_best(str(tmp_path / 'plain'), str(tmp_path / 'none')) is None
+
+
+@pytest.mark.parametrize('tracks, copies', [(0, 2), (2, 2), (5, 1), (3, 4)])
+def test_a_confirm_size_of_the_study_scores_as_the_confirm_stage_on_those_starts(tmp_path, tracks, copies):
+    """training.studies.confirm_starts scores every size as a subset of one set of rollouts: the
+    first ``tracks`` training tracks' starts, ``copies`` copies of each, score as the confirm
+    stage itself scores them (0 tracks: the selection's own starts)."""
+    from training.studies.confirm_starts import _per_rollout, _subset_score
+
+    cfg = _cfg(confirm=3)
+    trainer = Trainer(cfg, _data(tmp_path), str(tmp_path / 'run'), **QUIET)
+    sc = cfg['selection']
+    truths = confirm_truths(trainer.splits, dict(sc, confirm_trajectories=None), 1)
+    groups = _per_rollout(trainer.policy, FLOCK, truths, 4, sc['perturb'], cfg['policy'], 0.01)
+    size = dict(sc, confirm_trajectories=tracks, rollouts=copies)
+    starts = confirm_truths(trainer.splits, size, 1) if tracks else selection_truths(trainer.splits, size, 1)
+    want = rollout_metrics(trainer.policy, FLOCK, starts, size, cfg['policy'], 0.01)
+    assert np.isfinite(want['score']) and want['rollouts'] == (1 + tracks) * copies
+    # rel 1e-6: the float32 network rounds differently in a batch of another size; another subset
+    # (other starts or copies) differs by orders of magnitude more
+    assert _subset_score(FLOCK, groups, [1, tracks], copies, 4) == pytest.approx(want['score'], rel=1e-6)
+    if copies < 4:
+        other = _subset_score(FLOCK, groups, [1, tracks], copies + 1, 4)
+        assert other != pytest.approx(want['score'], rel=1e-4)
