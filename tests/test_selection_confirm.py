@@ -219,3 +219,52 @@ def test_a_confirm_size_of_the_study_scores_as_the_confirm_stage_on_those_starts
     if copies < 4:
         other = _subset_score(FLOCK, groups, [1, tracks], copies + 1, 4)
         assert other != pytest.approx(want['score'], rel=1e-4)
+
+
+def test_the_confirm_sizes_study_runs_a_law_study_folder_and_resumes(tmp_path, monkeypatch):
+    """python -m training.studies.confirm_starts on a tiny custom_laws study: the recipe's size
+    (8 tracks x 2) scores the candidates as the run's own confirm stage did and chooses its epoch,
+    a regret is the choice's mean held-out score over the two sets less the best candidate's, and
+    the same call again runs nothing (an interrupted study resumes)."""
+    from training.studies import confirm_starts, custom_laws
+    from training.studies.laws import LAWS, Law
+
+    base = LAWS['aggregate2d']
+    law = Law(base.name, base.scenario, base.command, base.start_radius_per_sqrt_n, base.start_speed, 30)
+    monkeypatch.setitem(custom_laws.LAWS, 'aggregate2d', law)
+    monkeypatch.setitem(confirm_starts.LAWS, 'aggregate2d', law)
+    recipe = yaml.safe_load(open('config/train_custom.yaml'))
+    recipe['training']['epochs'] = 4
+    recipe['policy']['hidden'] = 8
+    recipe['selection'].update(every=1, confirm=3)
+    config = tmp_path / 'tiny.yaml'
+    config.write_text(yaml.safe_dump(recipe))
+    out = tmp_path / 'laws'
+    argv = ['--laws', 'aggregate2d', '--out', str(out), '--config', str(config), '--trajectories', '12']
+    assert custom_laws.main(argv + ['--eval-robots', '4', '--starts', '2']) == 0
+    folder = str(out / 'aggregate2d')
+    sizes = tmp_path / 'sizes.json'
+    study = [folder, '--out', str(sizes), '--held-out', '3', '--robots', '4', '--seeds', '1000', '2000']
+    assert confirm_starts.main(study) == 0
+    (run,) = json.loads(sizes.read_text())
+    summary = json.loads((out / 'aggregate2d' / 'run' / 'summary.json').read_text())
+    recipe_size = [s['tracks'] for s in run['sizes']].index(8)
+    assert run['choices'][recipe_size]['epoch'] == summary['best']['epoch']
+    assert [c['epoch'] for c in run['candidates']] == [c['epoch'] for c in summary['confirmed']]
+    # the recipe's size scores each candidate as the run's confirm stage did
+    logged = [c['confirm_score'] for c in summary['confirmed']]
+    assert [c['scores'][recipe_size] for c in run['candidates']] == pytest.approx(logged, rel=1e-6)
+    by_epoch = {c['epoch']: c for c in run['candidates']}
+    best = min(c['held_out_score'] for c in run['candidates'])
+    for ch in run['choices']:
+        c = by_epoch[ch['epoch']]
+        assert c['held_out_score'] == pytest.approx(np.mean(c['held_out_scores']))
+        assert ch['regret'] == pytest.approx(c['held_out_score'] - best) and ch['regret'] >= 0.0
+    assert (tmp_path / 'sizes.md').read_text().count('| aggregate2d') == 1
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError('a run already in --out was run again')
+
+    monkeypatch.setattr(confirm_starts, 'study_run', must_not_run)
+    assert confirm_starts.main(study) == 0
+    assert json.loads(sizes.read_text()) == [run]

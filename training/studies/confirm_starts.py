@@ -13,7 +13,8 @@ subset of one set of rollouts (the confirm stage's copies are prefixes of each
 other: copy r is seeded r), so the sizes are compared on the same draws, and the current size
 reproduces the run's own confirm scores. The score is the selection's
 (:func:`training.assessment.scores.selection_score`); a choice's regret is its held-out score
-minus the best candidate's. Writes ``--out`` (JSON) and a markdown table beside it (``.md``).
+minus the best candidate's. Writes ``--out`` (JSON, after every run) and a markdown table beside
+it (``.md``); the runs already in ``--out`` with the same settings are not run again.
 """
 
 from __future__ import annotations
@@ -87,7 +88,8 @@ def study_run(
     val_count, train_count = truths[0].shape[0], truths[1].shape[0] if len(truths) > 1 else 0
     most = max(c for _, c in SIZES)
     references = [simulate(law, initial_states(law, held_out, robots, seed), law.steps) for seed in seeds]
-    out = {'run': run_dir, 'law': law.name, 'seeds': list(seeds), 'sizes': [], 'candidates': []}
+    out = {'run': run_dir, 'law': law.name, 'robots': robots, 'held_out': held_out, 'seeds': list(seeds)}
+    out.update(sizes=[], candidates=[])
     for t, c in SIZES if sizes else ():
         tracks = train_count if t is None else min(t, train_count)
         out['sizes'].append({'tracks': tracks, 'copies': c, 'rollouts': (val_count + tracks) * c})
@@ -176,7 +178,17 @@ def main(argv: Optional[List[str]] = None) -> int:
         if os.path.basename(os.path.normpath(folder)) not in LAWS or not os.path.isdir(folder):
             raise KnodeError(f'{folder}: not a study folder OUT/LAW of a law in training.studies.laws')
     results = []
+    if os.path.exists(args.out):  # an interrupted study resumes: its runs of the same settings stay
+        with open(args.out) as fh:
+            same = (args.robots, args.held_out, args.seeds, not args.no_sizes)
+            results = [
+                r for r in json.load(fh) if (r['robots'], r['held_out'], r['seeds'], bool(r['sizes'])) == same
+            ]
+    done = {r['run'] for r in results}
     for run_dir in [r for folder in args.folders for r in sorted(glob.glob(os.path.join(folder, 'run*')))]:
+        if run_dir in done:
+            print(f'{run_dir}: in {args.out} already')
+            continue
         r = study_run(run_dir, args.robots, args.held_out, args.seeds, not args.no_sizes)
         if r is not None:
             results.append(r)
