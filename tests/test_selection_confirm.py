@@ -202,13 +202,14 @@ def test_a_confirm_size_of_the_study_scores_as_the_confirm_stage_on_those_starts
     """training.studies.confirm_starts scores every size as a subset of one set of rollouts: the
     first ``tracks`` training tracks' starts, ``copies`` copies of each, score as the confirm
     stage itself scores them (0 tracks: the selection's own starts)."""
-    from training.studies.confirm_starts import _per_rollout, _subset_score
+    from training.learning.selection import rollout_groups
+    from training.studies.confirm_starts import _subset_score
 
     cfg = _cfg(confirm=3)
     trainer = Trainer(cfg, _data(tmp_path), str(tmp_path / 'run'), **QUIET)
     sc = cfg['selection']
     truths = confirm_truths(trainer.splits, dict(sc, confirm_trajectories=None), 1)
-    groups = _per_rollout(trainer.policy, FLOCK, truths, 4, sc['perturb'], cfg['policy'], 0.01)
+    groups = rollout_groups(trainer.policy, FLOCK, truths, 4, sc['perturb'], cfg['policy'], 0.01)
     size = dict(sc, confirm_trajectories=tracks, rollouts=copies)
     starts = confirm_truths(trainer.splits, size, 1) if tracks else selection_truths(trainer.splits, size, 1)
     want = rollout_metrics(trainer.policy, FLOCK, starts, size, cfg['policy'], 0.01)

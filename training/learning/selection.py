@@ -56,6 +56,35 @@ def confirm_truths(splits: List[Dict[str, Any]], sc: Dict[str, Any], ratio: int)
     return selection_truths(splits, sc, ratio) + extra
 
 
+def rollout_groups(
+    module: torch.nn.Module,
+    spec: Scenario,
+    truths: List[np.ndarray],
+    copies: int,
+    perturb: float,
+    cfg_policy: Dict[str, Any],
+    dt: float,
+) -> Optional[List[Dict[str, List[float]]]]:
+    """Per-rollout metrics of ``module`` rolled out from the first frame of every trajectory in
+    each group of ``truths`` (``copies`` perturbed copies each, start-major as
+    :func:`~training.assessment.scores.perturbed_starts`): one dict of lists per group, or None
+    when a rollout blows up."""
+    module.eval()
+    groups = []
+    try:
+        for truth in truths:  # one batch of rollouts per group (a swarm size, a horizon)
+            # several rollouts per start sample the chaotic spread (copy 0 is the start itself; the
+            # same perturbations every epoch and run, so epochs are ranked on the same draws)
+            starts = perturbed_starts(truth[:, 0], copies, perturb, spec.position_dim)
+            pred = rollout_module(module, spec, starts, truth.shape[1] - 1, cfg_policy, dt)
+            if not np.all(np.isfinite(pred)):
+                return None
+            groups.append(final_metrics(spec, pred, np.repeat(truth, copies, axis=0), dt=dt))
+    finally:
+        module.train()
+    return groups
+
+
 def rollout_metrics(
     module: torch.nn.Module,
     spec: Scenario,
@@ -67,21 +96,13 @@ def rollout_metrics(
     """Roll ``module`` out from the first frame of every trajectory in ``truths`` (``selection.rollouts``
     perturbed copies each) and score the rollouts against them: ``{'score', 'rollouts', ...}``
     (:func:`training.assessment.scores.selection_score`, lower is better; +inf when a rollout blows up)."""
-    module.eval()
+    groups = rollout_groups(module, spec, truths, sc['rollouts'], sc['perturb'], cfg_policy, dt)
+    if groups is None:
+        return {'score': float('inf')}
     m: Dict[str, Any] = {}
-    try:
-        for truth in truths:  # one batch of rollouts per group (a swarm size, a horizon)
-            # several rollouts per start sample the chaotic spread (copy 0 is the start itself; the
-            # same perturbations every epoch and run, so epochs are ranked on the same draws)
-            starts = perturbed_starts(truth[:, 0], sc['rollouts'], sc['perturb'], spec.position_dim)
-            pred = rollout_module(module, spec, starts, truth.shape[1] - 1, cfg_policy, dt)
-            if not np.all(np.isfinite(pred)):
-                return {'score': float('inf')}
-            truth = np.repeat(truth, sc['rollouts'], axis=0)
-            for key, values in final_metrics(spec, pred, truth, dt=dt).items():
-                m.setdefault(key, []).extend(values)
-    finally:
-        module.train()
+    for group in groups:
+        for key, values in group.items():
+            m.setdefault(key, []).extend(values)
     out = {'score': selection_score(spec, m), 'rollouts': len(m['amd_final'])}
     # the spread behind the score: standard error of its per-rollout term over the rollouts
     spread_key = 'avd_final' if spec.name == 'flock2d' else 'pod_kld'

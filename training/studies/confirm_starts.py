@@ -31,8 +31,8 @@ import torch
 
 from knode_swarm_ros.core.cli import cli
 from knode_swarm_ros.core.errors import KnodeError
-from training.assessment.scores import final_metrics, perturbed_starts, rollout_module, selection_score
-from training.learning.selection import confirm_truths
+from training.assessment.scores import selection_score
+from training.learning.selection import confirm_truths, rollout_groups
 from training.learning.trainer import Trainer
 
 from .laws import LAWS, initial_states, simulate
@@ -41,22 +41,12 @@ from .laws import LAWS, initial_states, simulate
 SIZES: Tuple[Tuple[Optional[int], int], ...] = ((0, 2), (8, 2), (None, 2), (None, 4), (None, 8))
 
 
-def _per_rollout(module, spec, truths: Sequence[np.ndarray], copies: int, perturb: float, cfg_policy, dt):
-    """Per-rollout metrics of ``module`` from every start of every group in ``truths``, ``copies``
-    copies each: one dict of lists per group (start-major, as :func:`perturbed_starts`)."""
-    module.eval()
-    groups = []
-    with torch.no_grad():
-        for truth in truths:
-            starts = perturbed_starts(truth[:, 0], copies, perturb, spec.position_dim)
-            pred = rollout_module(module, spec, starts, truth.shape[1] - 1, cfg_policy, dt)
-            groups.append(final_metrics(spec, pred, np.repeat(truth, copies, axis=0), dt=dt))
-    return groups
-
-
 def _subset_score(spec, groups, counts: Sequence[int], copies: int, stored: int) -> float:
     """The selection score of the first ``counts[g]`` starts of each group, ``copies`` copies of
-    each, out of per-rollout metrics stored with ``stored`` copies per start."""
+    each, out of per-rollout metrics stored with ``stored`` copies per start
+    (:func:`~training.learning.selection.rollout_groups`; None, a rollout blew up: +inf)."""
+    if groups is None:
+        return float('inf')
     m: Dict[str, List[float]] = {}
     for group, count in zip(groups, counts):
         keep = [s * stored + c for s in range(count) for c in range(copies)]
@@ -97,12 +87,14 @@ def study_run(
         trainer.policy.load_state_dict(cand['state'])
         scores = []
         if sizes:
-            groups = _per_rollout(trainer.policy, spec, truths, most, sc['perturb'], cfg['policy'], dt)
+            groups = rollout_groups(trainer.policy, spec, truths, most, sc['perturb'], cfg['policy'], dt)
             for size in out['sizes']:
                 counts = [val_count, size['tracks']][: len(groups)]
                 scores.append(_subset_score(spec, groups, counts, size['copies'], most))
         held = [
-            selection_score(spec, _per_rollout(trainer.policy, spec, [ref], 1, 0.0, cfg['policy'], dt)[0])
+            _subset_score(
+                spec, rollout_groups(trainer.policy, spec, [ref], 1, 0.0, cfg['policy'], dt), [held_out], 1, 1
+            )
             for ref in references
         ]
         out['candidates'].append(

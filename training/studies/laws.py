@@ -250,6 +250,15 @@ def drones3d(z: np.ndarray) -> np.ndarray:
     return drones3d_arena(z, w=np.inf)
 
 
+def _nearest(d: np.ndarray, k: int) -> np.ndarray:
+    """Whether robot j is one of robot i's ``k`` nearest others, whatever the distance (rank, not
+    range): ``[S, n, n]`` bool from distances ``d [S, n, n]`` (inf on the diagonal)."""
+    nearest = np.argsort(d, axis=2)[:, :, : min(k, d.shape[-1] - 1)]
+    heeded = np.zeros(d.shape, dtype=bool)
+    np.put_along_axis(heeded, nearest, True, axis=2)
+    return heeded
+
+
 def starlings3d(
     z: np.ndarray,
     speed: float = 1.0,
@@ -260,9 +269,7 @@ def starlings3d(
 ) -> np.ndarray:
     p, h = z[..., :3], z[..., 3:]
     r, d = _offsets(p)
-    nearest = np.argsort(d, axis=2)[:, :, : min(k, p.shape[1] - 1)]  # [S, n, k]: rank, not range
-    heeded = np.zeros(d.shape, dtype=bool)
-    np.put_along_axis(heeded, nearest, True, axis=2)
+    heeded = _nearest(d, k)
     count = heeded.sum(axis=2, keepdims=True)
     align = (h[:, None, :, :] * heeded[..., None]).sum(axis=2) / count
     centre = (r * heeded[..., None]).sum(axis=2) / count
@@ -324,9 +331,7 @@ def fish3d_tank(
 ) -> np.ndarray:
     p, h = z[..., :3], z[..., 3:]
     r, d = _offsets(p)
-    nearest = np.argsort(d, axis=2)[:, :, : min(k, p.shape[1] - 1)]
-    heeded = np.zeros(d.shape, dtype=bool)
-    np.put_along_axis(heeded, nearest, True, axis=2)
+    heeded = _nearest(d, k)
     rh = r / np.where(np.isfinite(d), d, 1.0)[..., None]
     count = heeded.sum(axis=2, keepdims=True)
     align = (h[:, None, :, :] * heeded[..., None]).sum(axis=2) / np.maximum(count, 1)  # a lone fish
