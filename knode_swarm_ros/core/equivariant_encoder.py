@@ -43,6 +43,12 @@ vectors pair vectors, so a pair term may be any function of the offset (a swirl 
 vertical is ``e_z x r_hat``, two axes' coefficients); the half-turn average keeps what symmetry
 the arena has. A neighbour in the own state still adds nothing (the axes' coefficients are
 taken relative to it, as the own velocity's).
+
+``rank``: a topological law (each robot heeds its few nearest, however far) weighs a neighbour
+by its place among the others, not by its distance alone. The rows of ``Y`` arrive sorted by
+distance, so with ``rank`` the pair scalars gain ``log(1 + rank)`` (1 for the nearest row): a
+pair term may then fall off with rank. The own-state subtraction is taken at each row's rank,
+so that a neighbour in the own state still adds nothing.
 """
 
 from __future__ import annotations
@@ -108,10 +114,11 @@ class EquivariantEncoder(nn.Module):
         keep_own_position: bool,
         reach: float = 8.0,
         axes: bool = False,
+        rank: bool = False,
     ):
         """``reach``: the communication radius in units of the position scale (the farthest
-        neighbour distance the basis resolves); ``axes``: the pair terms see the coordinate axes
-        (module docstring)."""
+        neighbour distance the basis resolves); ``axes``: the pair terms see the coordinate axes;
+        ``rank``: they see the row's rank among the neighbours (module docstring)."""
         super().__init__()
         self.position_dim = position_dim
         self.moving = state_dim > position_dim
@@ -125,6 +132,9 @@ class EquivariantEncoder(nn.Module):
         self.axes = bool(axes)
         if self.axes:
             scalars += position_dim * (3 if self.moving else 1)  # the components of r_hat (dv, v)
+        self.rank = bool(rank)
+        if self.rank:
+            scalars += 1
         relative_vectors = self.vectors  # those a neighbour in the own state gives as zero
         if self.axes:
             self.vectors += position_dim
@@ -223,8 +233,14 @@ class EquivariantEncoder(nn.Module):
         same, _ = self.pair_terms(
             torch.zeros_like(v).unsqueeze(1), torch.zeros_like(v).unsqueeze(1), v.unsqueeze(1)
         )
+        if self.rank:
+            # valid rows come first, nearest first (core.network.rank_neighbours)
+            ranks = torch.log1p(torch.arange(1, J + 1, dtype=Y.dtype, device=Y.device))
+            ranks = ranks.view(1, J, 1).expand(Y.shape[0], J, 1)
+            scalars = torch.cat([scalars, ranks], dim=-1)
+            same = torch.cat([same.expand(Y.shape[0], J, same.shape[-1]), ranks], dim=-1)
         m = mask[:, 1:].to(Y.dtype).unsqueeze(-1)
-        h_same = torch.tanh(self.pair(same))  # [B, 1, H]
+        h_same = torch.tanh(self.pair(same))  # [B, 1, H], or [B, J, H] with rank
         h_raw = torch.tanh(self.pair(scalars)) * m  # [B, J, H]
         h = h_raw - h_same * m
         own_velocity = torch.tensor(self.own_velocity_mask, dtype=Y.dtype, device=Y.device)
