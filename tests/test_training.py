@@ -282,6 +282,32 @@ def test_the_time_cap_starts_no_epoch_that_would_end_past_it(tmp_path, monkeypat
     assert log[-1]['elapsed_s'] == 180.0 <= 60 * 3.8
 
 
+def test_the_confirm_reserve_plans_with_the_median_selection_and_resume_keeps_the_times(tmp_path):
+    # one selection slowed by a passing load (100 s among 2 s ones) must not reserve the cap for
+    # the confirm stage: the reserve is K x the median selection x the confirm stage's size
+    data, _ = _teacher_data(tmp_path)
+    _, cfg = _config(tmp_path, training={'epochs': 3}, selection={'every': 1, 'confirm': 3})
+    quiet = dict(progress=False, log=lambda *a: None)
+    trainer = Trainer(cfg, data, str(tmp_path / 'run'), **quiet)
+    assert trainer.select_s is None and trainer.confirm_reserve() == 0.0
+    assert trainer.run(stop_after=2) is None
+    assert len(trainer.select_times) == 2  # one per epoch
+    trainer.select_times = [2.0, 100.0, 2.0]
+    assert trainer.select_s == 2.0
+    assert trainer.confirm_reserve() == pytest.approx(3 * 2.0 * trainer.confirm_cost)
+    assert trainer.confirm_cost > 1.0  # the confirm stage rolls out more starts than a selection
+    trainer._save_checkpoint()
+    resumed = Trainer(cfg, data, str(tmp_path / 'run'), resume=True, **quiet)
+    assert resumed.select_times == [2.0, 100.0, 2.0]
+    # a checkpoint written before the times were kept has the last selection's seconds only
+    ck = torch.load(tmp_path / 'run' / 'checkpoint.pt', weights_only=False)
+    del ck['select_times']
+    ck['select_s'] = 7.5
+    torch.save(ck, tmp_path / 'run' / 'checkpoint.pt')
+    old = Trainer(cfg, data, str(tmp_path / 'run'), resume=True, **quiet)
+    assert old.select_times == [7.5] and old.select_s == 7.5
+
+
 def test_divergence_guard_on_absurd_learning_rate(tmp_path, capsys):
     data, _ = _teacher_data(tmp_path)
     cfg_path, _ = _config(tmp_path, training={'epochs': 5, 'lr': 1.0e6, 'grad_clip': None})

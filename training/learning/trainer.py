@@ -314,7 +314,9 @@ class Trainer:
         # the selection's best epoch (and, with selection.confirm, its runners-up: the candidates)
         self.best: Optional[Dict[str, Any]] = None
         self.candidates = Candidates(cfg['selection']['confirm'])
-        self.select_s: Optional[float] = None  # the last selection's seconds
+        # every selection's seconds: the time cap plans with their median, which one selection
+        # slowed by a passing load does not move
+        self.select_times: List[float] = []
         self.confirm_s: Optional[float] = None
         self.confirmed: Optional[List[Dict[str, Any]]] = None
         # the confirm stage's rollout steps over one selection's, per candidate
@@ -413,7 +415,8 @@ class Trainer:
         self.sched.load_state_dict(ck['scheduler'])
         self.epoch, self.best, self.ref_loss = ck['epoch'], ck['best'], ck['ref_loss']
         self.candidates = Candidates(self.cfg['selection']['confirm'], ck.get('candidates'))
-        self.select_s = ck.get('select_s')
+        old = ck.get('select_s')  # checkpoints written before the times were kept: the last one
+        self.select_times = list(ck.get('select_times') or ([] if old is None else [old]))
         self.start_selection = ck.get('start_selection')
         self.elapsed = ck.get('elapsed', 0.0)
         # keep the metrics log consistent with the checkpoint (drop epochs after it)
@@ -432,7 +435,7 @@ class Trainer:
             'epoch': self.epoch,
             'best': self.best,
             'candidates': self.candidates.kept,
-            'select_s': self.select_s,
+            'select_times': self.select_times,
             'ref_loss': self.ref_loss,
             'elapsed': self.elapsed,
             'start_selection': self.start_selection,
@@ -457,7 +460,7 @@ class Trainer:
             return None
         t0 = time.perf_counter()
         out = rollout_metrics(self.policy, self.spec, truths, sc, self.cfg['policy'], self.dt)
-        self.select_s = time.perf_counter() - t0
+        self.select_times.append(time.perf_counter() - t0)
         return out
 
     def _offer(self, epoch: int, sel: Dict[str, Any]) -> None:
@@ -468,9 +471,14 @@ class Trainer:
             # nothing finite yet: remember the (infinite) score, the export keeps the last epoch
             self.best = {'epoch': epoch, 'score': sel['score'], 'metrics': sel, 'state': None}
 
+    @property
+    def select_s(self) -> Optional[float]:
+        """One selection's seconds: the median of those so far (None before the first)."""
+        return float(np.median(self.select_times)) if self.select_times else None
+
     def confirm_reserve(self) -> float:
-        """Seconds the confirm stage will take, from the last selection's time: the run's time cap
-        (``training.max_minutes``) holds training and confirm stage together."""
+        """Seconds the confirm stage will take, from a selection's time (:attr:`select_s`): the
+        run's time cap (``training.max_minutes``) holds training and confirm stage together."""
         sc = self.cfg['selection']
         if sc['confirm'] < 2 or self.select_s is None:
             return 0.0
