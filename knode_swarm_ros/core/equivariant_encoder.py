@@ -46,9 +46,11 @@ taken relative to it, as the own velocity's).
 
 ``rank``: a topological law (each robot heeds its few nearest, however far) weighs a neighbour
 by its place among the others, not by its distance alone. The rows of ``Y`` arrive sorted by
-distance, so with ``rank`` the pair scalars gain ``log(1 + rank)`` (1 for the nearest row): a
-pair term may then fall off with rank. The own-state subtraction is taken at each row's rank,
-so that a neighbour in the own state still adds nothing.
+distance, so with ``rank = R > 0`` the pair scalars gain ``log(1 + min(rank, R))`` (rank 1 for
+the nearest row): a pair term may then fall off with rank. Rows past the R-th count as the R-th:
+a swarm denser than the data gives ranks the data never showed, and a tanh layer extrapolates
+them freely. The own-state subtraction is taken at each row's rank, so that a neighbour in the
+own state still adds nothing.
 """
 
 from __future__ import annotations
@@ -114,11 +116,12 @@ class EquivariantEncoder(nn.Module):
         keep_own_position: bool,
         reach: float = 8.0,
         axes: bool = False,
-        rank: bool = False,
+        rank: int = 0,
     ):
         """``reach``: the communication radius in units of the position scale (the farthest
         neighbour distance the basis resolves); ``axes``: the pair terms see the coordinate axes;
-        ``rank``: they see the row's rank among the neighbours (module docstring)."""
+        ``rank``: they see the row's rank among the neighbours, up to that rank (0: not at all;
+        module docstring)."""
         super().__init__()
         self.position_dim = position_dim
         self.moving = state_dim > position_dim
@@ -132,8 +135,8 @@ class EquivariantEncoder(nn.Module):
         self.axes = bool(axes)
         if self.axes:
             scalars += position_dim * (3 if self.moving else 1)  # the components of r_hat (dv, v)
-        self.rank = bool(rank)
-        if self.rank:
+        self.rank = int(rank)
+        if self.rank > 0:
             scalars += 1
         relative_vectors = self.vectors  # those a neighbour in the own state gives as zero
         if self.axes:
@@ -233,9 +236,10 @@ class EquivariantEncoder(nn.Module):
         same, _ = self.pair_terms(
             torch.zeros_like(v).unsqueeze(1), torch.zeros_like(v).unsqueeze(1), v.unsqueeze(1)
         )
-        if self.rank:
+        if self.rank > 0:
             # valid rows come first, nearest first (core.network.rank_neighbours)
-            ranks = torch.log1p(torch.arange(1, J + 1, dtype=Y.dtype, device=Y.device))
+            ranks = torch.arange(1, J + 1, dtype=Y.dtype, device=Y.device)
+            ranks = torch.log1p(torch.clamp(ranks, max=float(self.rank)))
             ranks = ranks.view(1, J, 1).expand(Y.shape[0], J, 1)
             scalars = torch.cat([scalars, ranks], dim=-1)
             same = torch.cat([same.expand(Y.shape[0], J, same.shape[-1]), ranks], dim=-1)

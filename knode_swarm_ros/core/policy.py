@@ -12,7 +12,7 @@
   (:mod:`.equivariant_encoder`) is one too, and exactly rotation-equivariant: pairwise terms
   along the directions the robots define; with ``axes=True`` its pair terms also see the
   coordinate axes, for laws that rotations change (a room whose vertical is special); with
-  ``rank=True`` they also see each neighbour's rank by distance (topological laws).
+  ``rank=R`` they also see each neighbour's rank by distance, up to R (topological laws).
 * ``symmetric=True`` averages ``u_theta`` over the half turns about the coordinate axes
   (:func:`half_turns`): the network is then exactly equivariant under them. Training data
   rotated at random teach a network the symmetry only approximately, and a constant left over
@@ -118,7 +118,7 @@ class PolicyConfig:
     turn_limit: Optional[float] = None
     axes: bool = False
     inversion: bool = False
-    rank: bool = False
+    rank: int = 0
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
@@ -137,7 +137,8 @@ class PolicyConfig:
             or (self.symmetric in TURN_AXES and spec.position_dim == 3),
             # the other encoders see the offsets' coordinates already
             'axes': self.axes is False or (self.axes is True and self.encoder == 'equivariant'),
-            'rank': self.rank is False or (self.rank is True and self.encoder == 'equivariant'),
+            'rank': type(self.rank) is int
+            and (self.rank == 0 or (self.rank > 0 and self.encoder == 'equivariant')),
             # in 2D the half turn about the origin is the inversion already
             'inversion': self.inversion is False or (self.inversion is True and spec.position_dim == 3),
             'potential': self.potential in ('paper', 'continuous'),
@@ -233,7 +234,7 @@ class KNODEPolicy(nn.Module):
                 self.keep_own_position,
                 reach=config.d_cr / config.position_scale,
                 **({'axes': True} if config.axes else {}),
-                **({'rank': True} if config.rank else {}),
+                **({'rank': config.rank} if config.rank else {}),
             )
         else:
             n_in = config.k * spec.state_dim + ((config.k - 1) if self.relative else 0)

@@ -52,6 +52,9 @@ derived, in order (later rules use earlier values, derived or given):
   kept are not all three (a constant along an axis would survive their average and sum, in a
   denser swarm, into a drift): the average then also runs over p -> -p, which keeps every sense
   of rotation; false otherwise.
+* ``policy.rank`` (``equivariant`` only; 0 for the others): the most robots the data show within
+  d_cr, the largest neighbour rank the pair terms tell apart (farther rows in a denser swarm
+  count as that rank).
 """
 
 from __future__ import annotations
@@ -87,6 +90,7 @@ DERIVED_FIELDS = (
     'policy.axes',
     'policy.symmetric',
     'policy.inversion',
+    'policy.rank',
 )
 # A set-encoder policy is sized (k) for neighbourhoods up to this many times the data's largest.
 DENSER = 4
@@ -371,6 +375,17 @@ def derive(
                 else 'the encoder does not see the axes (without them the equivariant encoder is odd already)'
             ),
         )
+    if encoder == 'equivariant':
+        seen = int(counts.max())
+        put(
+            'policy.rank',
+            max(seen, 1),
+            f"the most robots the data show within d_cr ({seen}): the pair terms see a neighbour's rank "
+            'by distance (a topological law heeds its few nearest), up to the largest rank the data '
+            'hold; farther rows in a denser swarm count as that rank',
+        )
+    else:
+        put('policy.rank', 0, f'0: the {encoder} encoder has no rank input')
     return cfg, record
 
 
