@@ -17,7 +17,10 @@ times constant-speed steering (``policy.speed``, ``policy.turn_limit``: core/ste
 the recipe's equivariant encoder, against the same encoder unsteered; the 3D arena scenario
 times the equivariant encoder seeing the coordinate axes (``policy.axes``, which the recipe
 derives with an arena), averaged over all half turns and over the half turn about z alone
-(``symmetric: z``), against the same encoder without the axes. One thread, as the agents and
+(``symmetric: z``), against the same encoder without the axes. A 2D open scenario and the 3D
+heading tank (steered, with the axes and the half turns, as the recipe derives them) time the
+equivariant encoder that sees each neighbour's rank (``policy.rank``, capped at 9) against the
+same encoder without it (``--only-rank`` runs that section alone). One thread, as the agents and
 the recipe (``training.threads: 1``) run. The last section (``--only-tail`` runs it alone)
 times the equivariant encoder's basis Gaussians with their far tail set to zero (as built)
 against the same encoder without that cutoff, whose tail is float32 subnormals.
@@ -136,12 +139,17 @@ def main(argv=None) -> None:
         '--k', type=int, default=37, help='rows of Y at run time (the set encoder derives ~37)'
     )
     parser.add_argument('--only-tail', action='store_true', help='only the basis tail section')
+    parser.add_argument('--only-rank', action='store_true', help='only the rank section')
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     print('$ python bench/bench_encoders.py ' + ' '.join(argv if argv is not None else sys.argv[1:]))
     print(machine())
+    if args.only_rank:
+        rank_cost(args)
+        return
     if not args.only_tail:
         compare_encoders(args)
+        rank_cost(args)
     basis_tail(args)
 
 
@@ -174,6 +182,24 @@ def compare_encoders(args) -> None:
         ),
     }
     table(rows, 'equivariant + symmetric')
+
+
+TANK = scenario(3, 'position_heading', 'velocity', {'half_width': 3.0})
+
+
+def rank_cost(args) -> None:
+    """The equivariant encoder with each neighbour's rank (capped at 9) against it without."""
+    print(f"\nThe neighbours' rank (k = {args.k} at run time, 10 in training)")
+    rows = {}
+    for name, ref, extra in (
+        ('2D position, velocity', SCENARIOS['2D position, velocity'], {'symmetric': False}),
+        ('3D heading tank, steered, axes + symmetric', TANK, {'symmetric': True, 'axes': True, **STEERING}),
+    ):
+        for label, rank in (('no rank', 0), ('rank', 9)):
+            rows[f'{name}, {label}'] = measure(
+                ref, 'equivariant', k=args.k, repeats=args.repeats, rank=rank, **extra
+            )
+    table(rows, '2D position, velocity, no rank', pairs=True)
 
 
 def basis_tail(args) -> None:

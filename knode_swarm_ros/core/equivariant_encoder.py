@@ -60,6 +60,7 @@ from typing import List
 
 import torch
 from torch import Tensor, nn
+from torch.nn import functional as F
 
 __all__ = ['EquivariantEncoder', 'DISTANCE_BASIS']
 
@@ -236,16 +237,20 @@ class EquivariantEncoder(nn.Module):
         same, _ = self.pair_terms(
             torch.zeros_like(v).unsqueeze(1), torch.zeros_like(v).unsqueeze(1), v.unsqueeze(1)
         )
+        m = mask[:, 1:].to(Y.dtype).unsqueeze(-1)
         if self.rank > 0:
-            # valid rows come first, nearest first (core.network.rank_neighbours)
+            # valid rows come first, nearest first (core.network.rank_neighbours). The rank is the
+            # pair layer's last input: its part is added to the others' (the same for every row of
+            # the own state), not concatenated, which would double the layer's work.
             ranks = torch.arange(1, J + 1, dtype=Y.dtype, device=Y.device)
             ranks = torch.log1p(torch.clamp(ranks, max=float(self.rank)))
-            ranks = ranks.view(1, J, 1).expand(Y.shape[0], J, 1)
-            scalars = torch.cat([scalars, ranks], dim=-1)
-            same = torch.cat([same.expand(Y.shape[0], J, same.shape[-1]), ranks], dim=-1)
-        m = mask[:, 1:].to(Y.dtype).unsqueeze(-1)
-        h_same = torch.tanh(self.pair(same))  # [B, 1, H], or [B, J, H] with rank
-        h_raw = torch.tanh(self.pair(scalars)) * m  # [B, J, H]
+            weight = self.pair.weight
+            by_rank = ranks.view(1, J, 1) * weight[:, -1].view(1, 1, -1)  # [1, J, H]
+            h_same = torch.tanh(F.linear(same, weight[:, :-1], self.pair.bias) + by_rank)  # [B, J, H]
+            h_raw = torch.tanh(F.linear(scalars, weight[:, :-1], self.pair.bias) + by_rank) * m
+        else:
+            h_same = torch.tanh(self.pair(same))  # [B, 1, H]
+            h_raw = torch.tanh(self.pair(scalars)) * m  # [B, J, H]
         h = h_raw - h_same * m
         own_velocity = torch.tensor(self.own_velocity_mask, dtype=Y.dtype, device=Y.device)
         a = self.pair_out(h_raw) - self.pair_out(h_same) * own_velocity * m  # [B, J, 2C]
