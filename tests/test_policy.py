@@ -284,6 +284,32 @@ def test_export_is_atomic_and_keeps_the_old_file_on_failure(tmp_path, good):
     assert [p.name for p in tmp_path.iterdir()] == ['good.pt']
 
 
+def test_export_refuses_a_module_whose_source_changed_on_disk_since_it_was_built(tmp_path, good, monkeypatch):
+    """torch.jit.script compiles a class's source as the file holds it now: a module built before
+    its file was edited (a training that runs while the package is changed or upgraded) would be
+    exported as other code than the one that trained. The export compares the two and refuses,
+    leaving the old file as it was."""
+    source = tmp_path / 'drifting_policy.py'
+    body = (
+        'import torch\n\n\nclass Policy(torch.nn.Module):\n'
+        '    def forward(self, Y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:\n'
+        '        return Y[:, 0, 2:] * {}\n'
+    )
+    source.write_text(body.format('0.5'))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import importlib
+
+    module = importlib.import_module('drifting_policy').Policy()
+    Y, mask = batch()
+    np.testing.assert_allclose(module(Y, mask).numpy(), 0.5 * Y[:, 0, 2:].numpy())
+    source.write_text(body.format('2.0 + 0.0'))  # edited on disk, the module in memory unchanged
+    meta = good[0].metadata()
+    before = good[1].read_bytes()
+    with pytest.raises(PolicyError, match='differs from the module it was made from.*source changed'):
+        export_policy(module, good[1], meta)
+    assert good[1].read_bytes() == before
+
+
 def test_expected_text_values_must_be_equal_not_merely_ordered():
     """A boids3d file where flock2d is required is refused although "boids3d" < "flock2d"
     (mutation survivor: only files whose text sorted after the required one were refused)."""

@@ -79,13 +79,15 @@ def export_policy(policy: torch.nn.Module, path: PathLike, meta: Dict[str, Any])
     """Script ``policy`` and write it with ``knode.json`` = ``meta`` atomically.
 
     ``meta`` must hold the required keys (``KNODEPolicy.metadata()`` does); the written file
-    is loaded back and validated before it replaces ``path``.
+    is loaded back and validated before it replaces ``path``, and the scripted module must compute
+    what ``policy`` does (:func:`_check_same_code`).
     """
     _check_meta(str(path), meta)
     was_training = policy.training
     policy.eval()
     try:
         scripted = _with_jit_quiet(torch.jit.script, policy)
+        _check_same_code(f'policy file {os.fspath(path)}', policy, scripted, meta)
     finally:
         policy.train(was_training)
     extra = {'knode.json': json.dumps(meta, sort_keys=True)}
@@ -95,6 +97,26 @@ def export_policy(policy: torch.nn.Module, path: PathLike, meta: Dict[str, Any])
         load_policy(tmp)
 
     atomic_write(path, write)
+
+
+def _check_same_code(where: str, policy: torch.nn.Module, scripted, meta: Dict[str, Any]) -> None:
+    """The scripted module computes what ``policy`` does, on a random batch. ``torch.jit.script``
+    compiles the classes' source as it is on disk when called, not as it was when ``policy`` was
+    built: a file edited or upgraded during a long training would otherwise export other code
+    than the one that trained, silently."""
+    k, d = int(meta['k']), int(meta['state_dim'])
+    g = torch.Generator().manual_seed(0)
+    Y = torch.randn(8, k, d, generator=g)
+    mask = (torch.rand(8, k, generator=g) < 0.7).to(torch.float32)
+    mask[:, 0] = 1.0
+    with torch.no_grad():
+        want, got = policy(Y, mask), scripted(Y, mask)
+    if not torch.allclose(got, want, rtol=1e-4, atol=1e-5, equal_nan=True):
+        gap = float((got - want).abs().max())
+        raise PolicyError(
+            f'{where}: the scripted module differs from the module it was made from (by up to {gap:.3g} '
+            'on a random batch): has its source changed on disk since it was built? Nothing was written'
+        )
 
 
 def _probe(where: str, module, meta: Dict[str, Any]) -> None:
