@@ -156,6 +156,17 @@ class EquivariantEncoder(nn.Module):
             if position_dim == 2:
                 own_velocity[5] = 1.0
         self.own_velocity_mask: List[float] = own_velocity * 2
+        # with the rank, those columns alone are taken relative to the own state, row by row, and
+        # put back in place by a 0 / 1 matrix [2C, n] (ONNX export takes no scatter)
+        columns = [i for i, x in enumerate(self.own_velocity_mask) if x == 1.0]
+        self.has_same_columns = len(columns) > 0
+        # never empty: TorchScript infers a list's type from its elements (unused without any)
+        self.same_columns: List[int] = columns or [0]
+        self.same_embed: List[float] = [
+            float(c == col and self.has_same_columns)
+            for c in range(len(self.own_velocity_mask))
+            for col in self.same_columns
+        ]
         self.axis_vectors: List[float] = [
             float(i == j) for i in range(position_dim) for j in range(position_dim)
         ]
@@ -246,14 +257,24 @@ class EquivariantEncoder(nn.Module):
             ranks = torch.log1p(torch.clamp(ranks, max=float(self.rank)))
             weight = self.pair.weight
             by_rank = ranks.view(1, J, 1) * weight[:, -1].view(1, 1, -1)  # [1, J, H]
-            h_same = torch.tanh(F.linear(same, weight[:, :-1], self.pair.bias) + by_rank)  # [B, J, H]
             h_raw = torch.tanh(F.linear(scalars, weight[:, :-1], self.pair.bias) + by_rank) * m
+            a = self.pair_out(h_raw)  # [B, J, 2C]
+            h = h_raw
+            # the own state's hidden units differ row by row now: computed only where used
+            if self.has_same_columns or self.own_vectors > 0:
+                h_same = torch.tanh(F.linear(same, weight[:, :-1], self.pair.bias) + by_rank) * m
+                h = h_raw - h_same
+                if self.has_same_columns:
+                    columns = torch.tensor(self.same_columns, dtype=torch.long, device=Y.device)
+                    a_same = F.linear(h_same, self.pair_out.weight.index_select(0, columns))
+                    embed = torch.tensor(self.same_embed, dtype=Y.dtype, device=Y.device)
+                    a = a - F.linear(a_same, embed.view(a.shape[-1], len(self.same_columns)))
         else:
             h_same = torch.tanh(self.pair(same))  # [B, 1, H]
             h_raw = torch.tanh(self.pair(scalars)) * m  # [B, J, H]
-        h = h_raw - h_same * m
-        own_velocity = torch.tensor(self.own_velocity_mask, dtype=Y.dtype, device=Y.device)
-        a = self.pair_out(h_raw) - self.pair_out(h_same) * own_velocity * m  # [B, J, 2C]
+            h = h_raw - h_same * m
+            own_velocity = torch.tensor(self.own_velocity_mask, dtype=Y.dtype, device=Y.device)
+            a = self.pair_out(h_raw) - self.pair_out(h_same) * own_velocity * m  # [B, J, 2C]
         C = self.vectors
         count = torch.clamp(m.sum(1), min=1.0)  # [B, 1]
         u = (a[:, :, :C].unsqueeze(-1) * vectors).sum(dim=(1, 2))
