@@ -205,9 +205,9 @@ def derive(
     n_min = min(f.shape[1] for f in frames)
     counts = _neighbour_counts(pos, d_cr)
     q90 = float(np.quantile(counts, 0.9))
+    seen = int(counts.max())  # the most robots within d_cr: k's room and the rank's cap
     if row_free:
         packed = lattice_neighbours(spec.dimensions, d_cr / median_nn)
-        seen = int(counts.max())
         put(
             'policy.k',
             int(min(max(2, 1 + min(packed, DENSER * seen)), 1024)),
@@ -376,7 +376,6 @@ def derive(
             ),
         )
     if encoder == 'equivariant':
-        seen = int(counts.max())
         put(
             'policy.rank',
             max(seen, 1),
