@@ -7,9 +7,10 @@ import os
 import numpy as np
 import pytest
 import torch
+from equivariant_checks import swarm
 from scipy.stats import special_ortho_group
 
-from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, neighbour_matrix
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig
 from knode_swarm_ros.core.equivariant_encoder import DISTANCE_BASIS
 from knode_swarm_ros.core.errors import ConfigError
 from knode_swarm_ros.core.metrics import nearest_neighbour_distance
@@ -42,16 +43,6 @@ def make(scenario, seed=0, **overrides):
     base = dict(encoder='equivariant', k=8, d_cr=3.0, hidden=16, position_scale=0.7, velocity_scale=0.8)
     base.update(overrides)
     return KNODEPolicy(PolicyConfig(scenario, **base)).eval()
-
-
-def swarm(scenario, n=10, seed=0):
-    rng = np.random.default_rng(seed)
-    z = rng.normal(scale=1.5, size=(n, scenario.state_dim))
-    if scenario.state == 'position_heading':
-        p = scenario.position_dim
-        z[:, p:] /= np.linalg.norm(z[:, p:], axis=1, keepdims=True)
-    Y, mask = neighbour_matrix(z, z, scenario.position_dim, 3.0, 8)
-    return torch.tensor(Y, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32)
 
 
 def on_states(R, Y):

@@ -10,10 +10,12 @@ import os
 import numpy as np
 import pytest
 import torch
+from equivariant_checks import assert_a_copy_of_the_robot_adds_nothing
+from equivariant_checks import swarm as random_swarm
 from export_parity import assert_exports_equal
 from scipy.stats import special_ortho_group
 
-from knode_swarm_ros.core import KNODEPolicy, PolicyConfig, neighbour_matrix
+from knode_swarm_ros.core import KNODEPolicy, PolicyConfig
 from knode_swarm_ros.core.equivariant_encoder import DISTANCE_BASIS
 from knode_swarm_ros.core.scenarios import scenario_from_dict
 from training.learning.config import load_config, resolve_config
@@ -45,15 +47,8 @@ def make(scenario, seed=0, **overrides):
     return KNODEPolicy(PolicyConfig(scenario, **base)).eval()
 
 
-def swarm(scenario, n=9, seed=0):
-    """Neighbour matrices of a random swarm, rows sorted by distance as every caller builds them."""
-    rng = np.random.default_rng(seed)
-    z = rng.normal(scale=1.2, size=(n, scenario.state_dim))
-    if scenario.state == 'position_heading':
-        p = scenario.position_dim
-        z[:, p:] /= np.linalg.norm(z[:, p:], axis=1, keepdims=True)
-    Y, mask = neighbour_matrix(z, z, scenario.position_dim, 3.0, 6)
-    return torch.tensor(Y, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32)
+def swarm(scenario):
+    return random_swarm(scenario, n=9, k=6, scale=1.2)
 
 
 def test_hand_set_weights_give_a_push_that_falls_off_with_rank():
@@ -122,22 +117,9 @@ def test_a_neighbour_in_the_own_state_adds_nothing_at_its_rank(scenario, p, d):
     """The own-state subtraction is taken at the row's rank: with the means off (the mean channel,
     the own term), a copy of the robot in the last row changes nothing."""
     policy = make(scenario, symmetric=False)
-    enc = policy.encoder
-    with torch.no_grad():
-        enc.pair_out.weight[enc.vectors :].zero_()
-        if hasattr(enc, 'own'):
-            enc.own[-1].weight.zero_()
-            enc.own[-1].bias.zero_()
-        Y, mask = swarm(scenario)
-        Y, mask = Y[:, :5], mask[:, :5].clone()
-        mask[:, :] = 1.0
-        with_copy = torch.cat([Y, Y[:, :1]], dim=1)
-        torch.testing.assert_close(
-            policy.network(with_copy, torch.cat([mask, torch.ones(len(Y), 1)], dim=1)),
-            policy.network(Y, mask),
-            rtol=1e-5,
-            atol=1e-6,
-        )
+    Y, mask = swarm(scenario)
+    Y, mask = Y[:, :5], torch.ones(len(Y), 5)
+    assert_a_copy_of_the_robot_adds_nothing(policy, Y, mask)
 
 
 @pytest.mark.parametrize('scenario,p,d', KINDS, ids=IDS)
